@@ -1,0 +1,431 @@
+"""The fit: Levenberg-Marquardt on the currents, then honest intervals.
+
+Unknowns are searched as ``z = ln(theta / theta_prior)`` so every parameter
+stays positive and every direction has the same scale (a raw ``ln(theta)``
+lets the first trust-region step jump to stiff, absurd motors). The whole
+solve — optimistix LM, the Jacobian at the optimum, the covariance — is one
+``jax.jit``-compiled function, ``vmap``-ped over datasets and starting points.
+
+Uncertainty: ``Cov = sigma_hat^2 (J^T J)^-1`` with ``sigma_hat^2 = ||r||^2 / (m - n)``,
+standard errors from its diagonal and Student-t 95 % intervals with m - n
+degrees of freedom (m current samples, n fitted parameters). Under vmap
+nothing throws: each fit carries its own result code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from scipy import stats
+
+from .data import BenchData
+from .errors import DrivecalError
+from .forward import Experiment, predict_currents
+from .identify import Identifiability, assess_identifiability
+from .motor import DESCRIPTIONS, ESTIMATED, FIXED, UNITS, MotorParams
+
+
+@dataclasses.dataclass(frozen=True)
+class FitOptions:
+    """Solver settings.
+
+    Attributes:
+        rtol, atol: optimistix LM termination tolerances on ``z = ln(theta/prior)``
+            and on the residuals; 1e-10 is far below any standard error.
+        max_steps: LM steps before giving up (reported, not raised).
+    """
+
+    rtol: float = 1e-10
+    atol: float = 1e-10
+    max_steps: int = 200
+
+
+class _Solved(eqx.Module):
+    """Raw per-fit arrays out of the compiled solve (leading batch axis)."""
+
+    theta: jnp.ndarray  # (n,) fitted parameters, their units
+    covariance: jnp.ndarray  # (n, n)
+    sigma_hat: jnp.ndarray  # () A
+    rss: jnp.ndarray  # () A^2
+    iterations: jnp.ndarray  # ()
+    result_code: jnp.ndarray  # () optimistix RESULTS index
+    converged: jnp.ndarray  # () bool
+
+
+def _residual_fn(prior: MotorParams, experiment: Experiment, names: tuple[str, ...], currents: jnp.ndarray):
+    theta0 = prior.vector(names)
+
+    def residual(z, _args):
+        motor = prior.with_vector(names, theta0 * jnp.exp(z))
+        return (predict_currents(motor, experiment) - currents).reshape(-1)
+
+    return residual
+
+
+def _solve_one(currents, z0, prior, experiment, names, options, verbose=False) -> _Solved:
+    residual = _residual_fn(prior, experiment, names, currents)
+    solver = optx.LevenbergMarquardt(rtol=options.rtol, atol=options.atol, verbose=verbose)
+    sol = optx.least_squares(residual, solver, z0, max_steps=options.max_steps, throw=False)
+    theta0 = prior.vector(names)
+    theta = theta0 * jnp.exp(sol.value)
+    r = residual(sol.value, None)
+
+    def currents_of(th):
+        return predict_currents(prior.with_vector(names, th), experiment).reshape(-1)
+
+    jac = jax.jacfwd(currents_of)(theta)
+    m, n = jac.shape
+    rss = r @ r
+    s2 = rss / (m - n)
+    # Invert in relative units (d I / d ln theta): the physical J^T J spans
+    # ten decades between ohms and henries.
+    js = jac * theta
+    cov = s2 * jnp.linalg.inv(js.T @ js) * jnp.outer(theta, theta)
+    ok = (
+        (sol.result == optx.RESULTS.successful)
+        & jnp.all(jnp.isfinite(theta))
+        & jnp.all(jnp.isfinite(cov))
+        & jnp.all(jnp.diag(cov) > 0)
+    )
+    return _Solved(
+        theta=theta,
+        covariance=cov,
+        sigma_hat=jnp.sqrt(s2),
+        rss=rss,
+        iterations=sol.stats["num_steps"],
+        result_code=sol.result._value,
+        converged=ok,
+    )
+
+
+@functools.partial(jax.jit, static_argnames=("names", "options"))
+def _solve_batch(currents, z0, prior, experiment, names, options) -> _Solved:
+    """Fit a batch: currents (B, M, 2) A, z0 (B, n). One compiled call."""
+    return jax.vmap(_solve_one, in_axes=(0, 0, None, None, None, None))(
+        currents, z0, prior, experiment, names, options
+    )
+
+
+def _result_message(code: int, converged: bool) -> str:
+    if converged:
+        return "converged"
+    message = optx.RESULTS._index_to_message[int(code)]
+    return message or "the covariance is not finite: the data does not constrain the fitted parameters"
+
+
+@dataclasses.dataclass(frozen=True)
+class Calibration:
+    """A fitted motor: estimates, uncertainty and how the fit ended.
+
+    Array fields may carry a leading batch axis (a batch of fits is the same
+    object; index it to get one). Parameters the experiment cannot identify
+    keep their prior value, have ``identifiable`` False and NaN uncertainty.
+
+    Attributes:
+        names: estimated parameter names (R, Ld, Lq, lambda_m by default).
+        estimate: (..., len(names)) estimates, SI units.
+        se: (..., len(names)) standard errors, NaN where not identifiable.
+        ci95: (..., len(names), 2) Student-t 95 % intervals [low, high].
+        identifiable: per name, whether it was fitted.
+        fit_names: the fitted names: the axes of ``covariance``.
+        covariance: (..., n, n) covariance of the fitted names, SI units.
+        sigma_hat: (...,) residual standard deviation (A).
+        rss: (...,) residual sum of squares (A^2).
+        iterations: (...,) LM steps taken.
+        converged: (...,) whether the solve ended successfully.
+        result_code: (...,) optimistix result index (0 = successful).
+        initial: (..., len(names)) starting point of the search.
+        prior: the nominal motor (also holds the fixed parameters).
+        identifiability: the pre-fit identifiability verdict.
+        num_residuals: m, current samples fitted (i_d and i_q).
+        t_factor: Student-t 97.5 % quantile with m - n degrees of freedom.
+        source: where the data came from.
+    """
+
+    names: tuple[str, ...]
+    estimate: np.ndarray
+    se: np.ndarray
+    ci95: np.ndarray
+    identifiable: tuple[bool, ...]
+    fit_names: tuple[str, ...]
+    covariance: np.ndarray
+    sigma_hat: np.ndarray
+    rss: np.ndarray
+    iterations: np.ndarray
+    converged: np.ndarray
+    result_code: np.ndarray
+    initial: np.ndarray
+    prior: MotorParams
+    identifiability: Identifiability
+    num_residuals: int
+    t_factor: float
+    source: str = "synthetic bench"
+
+    # --- batch handling --------------------------------------------------
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        """() for one fit, (B,) for a batch."""
+        return tuple(self.sigma_hat.shape)
+
+    def __len__(self) -> int:
+        if not self.batch_shape:
+            raise TypeError("a single Calibration has no len(); it is not a batch")
+        return self.batch_shape[0]
+
+    def __getitem__(self, i: int) -> Calibration:
+        """The i-th fit of a batch."""
+        if not self.batch_shape:
+            raise TypeError("a single Calibration cannot be indexed; it is not a batch")
+        fields = ("estimate", "se", "ci95", "covariance", "sigma_hat", "rss", "iterations", "converged",
+                  "result_code", "initial")
+        return dataclasses.replace(self, **{f: getattr(self, f)[i] for f in fields})
+
+    # --- convenient views ------------------------------------------------
+
+    @property
+    def motor(self) -> MotorParams:
+        """The calibrated motor: estimates, with the fixed parameters of the prior."""
+        return self.prior.with_vector(self.names, jnp.asarray(self.estimate))
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """(..., n, n) correlation matrix of the fitted names."""
+        sd = np.sqrt(np.diagonal(self.covariance, axis1=-2, axis2=-1))
+        return self.covariance / (sd[..., :, None] * sd[..., None, :])
+
+    @property
+    def dof(self) -> int:
+        """Residual degrees of freedom m - n."""
+        return self.num_residuals - len(self.fit_names)
+
+    @property
+    def message(self) -> str:
+        """How the fit ended, in words (single fits)."""
+        return _result_message(int(self.result_code), bool(self.converged))
+
+    @property
+    def fixed(self) -> dict[str, float]:
+        """Parameters held fixed: the mechanical ones, and unidentifiable ones at their prior."""
+        out = {n: float(getattr(self.prior, n)) for n in FIXED}
+        for n, ok in zip(self.names, self.identifiable):
+            if not ok:
+                out[n] = float(getattr(self.prior, n))
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        """The result JSON of a single fit (SI units; null where undefined)."""
+        if self.batch_shape:
+            raise TypeError("to_dict() is for one fit; index the batch first")
+
+        def num(x):
+            x = float(x)
+            return x if math.isfinite(x) else None
+
+        params = {}
+        for i, n in enumerate(self.names):
+            ok = self.identifiable[i]
+            params[n] = {
+                "estimate": num(self.estimate[i]),
+                "se": num(self.se[i]) if ok else None,
+                "ci95": [num(self.ci95[i, 0]), num(self.ci95[i, 1])] if ok else None,
+                "unit": UNITS[n],
+                "identifiable": bool(ok),
+                "initial": num(self.initial[i]),
+                "prior": num(getattr(self.prior, n)),
+            }
+            if not ok:
+                params[n]["reason"] = self.identifiability.reasons.get(n, "not identifiable")
+        return {
+            "parameters": params,
+            "names": list(self.fit_names),
+            "covariance": [[num(c) for c in row] for row in self.covariance],
+            "correlation": [[num(c) for c in row] for row in self.correlation],
+            "sigma_hat": num(self.sigma_hat),
+            "converged": bool(self.converged),
+            "message": self.message,
+            "iterations": int(self.iterations),
+            "num_residuals": self.num_residuals,
+            "dof": self.dof,
+            "identifiability": self.identifiability.to_dict(),
+            "fixed": self.fixed,
+            "source": self.source,
+        }
+
+    def __str__(self) -> str:
+        if self.batch_shape:
+            n_ok = int(np.sum(self.converged))
+            return f"Calibration batch of {len(self)} fits, {n_ok} converged"
+        lines = [
+            f"drivecal calibration ({self.source})",
+            f"  fit: {self.message} after {int(self.iterations)} LM steps; "
+            f"{self.num_residuals} current samples, sigma_hat = {float(self.sigma_hat) * 1e3:.3f} mA",
+            f"  identifiability: rank {self.identifiability.rank}/{len(self.names)}, "
+            f"condition number {self.identifiability.condition_number:.3g}",
+            "",
+            f"  {'parameter':<10} {'unit':<6} {'estimate':>13} {'std err':>11} {'95% CI':>29}  identifiable",
+        ]
+        for i, n in enumerate(self.names):
+            if self.identifiable[i]:
+                ci = f"[{self.ci95[i, 0]:.6g}, {self.ci95[i, 1]:.6g}]"
+                lines.append(f"  {n:<10} {UNITS[n]:<6} {self.estimate[i]:>13.6g} {self.se[i]:>11.3g} {ci:>29}  yes")
+            else:
+                why = self.identifiability.reasons.get(n, "")
+                lines.append(f"  {n:<10} {UNITS[n]:<6} {self.estimate[i]:>13.6g} {'-':>11} {'held at prior':>29}  NO: {why}")
+        return "\n".join(lines)
+
+
+def _start_vector(initial: MotorParams | np.ndarray | None, prior: MotorParams, names: tuple[str, ...]) -> np.ndarray:
+    if initial is None:
+        return np.asarray(prior.vector(names))
+    if isinstance(initial, MotorParams):
+        return np.asarray(initial.vector(names))
+    return np.asarray(initial, dtype=float)
+
+
+def fit_currents(
+    experiment: Experiment,
+    currents: np.ndarray,
+    prior: MotorParams,
+    *,
+    initial: MotorParams | np.ndarray | None = None,
+    identifiability: Identifiability | None = None,
+    names: tuple[str, ...] = ESTIMATED,
+    options: FitOptions = FitOptions(),
+    source: str = "synthetic bench",
+) -> Calibration:
+    """Fit measured currents of a known experiment; batched if ``currents`` is.
+
+    Args:
+        experiment: the applied voltages and rotor conditions (M samples).
+        currents: measured ``[i_d, i_q]`` (A), shape (M, 2) or (B, M, 2).
+        prior: nominal motor: scale of the search, value of anything not
+            identifiable, and the fixed parameters.
+        initial: starting point, shape (len(names),) or (B, len(names)) in SI
+            units, or a MotorParams; default the prior.
+        identifiability: a verdict already computed for this experiment and
+            prior (computed here if not given).
+        names: parameters to estimate.
+        options: solver settings.
+        source: label of the data, for reports.
+
+    Returns:
+        A :class:`Calibration`, with a leading batch axis when ``currents`` has one.
+    """
+    currents = np.asarray(currents, dtype=float)
+    batched = currents.ndim == 3
+    if currents.shape[-2:] != (experiment.num_samples, 2):
+        raise DrivecalError(
+            f"{source}: currents have shape {currents.shape}, expected ({experiment.num_samples}, 2) "
+            "to match the experiment."
+        )
+    if not np.all(np.isfinite(currents)):
+        raise DrivecalError(f"{source}: currents contain NaN or Inf; remove or repair those samples.")
+    ident = identifiability or assess_identifiability(experiment, prior, names=names)
+    fit_names = ident.fit_names
+    if not fit_names:
+        raise DrivecalError(
+            f"{source}: this experiment identifies none of {', '.join(names)}; "
+            "add locked d/q steps and a free spin-up."
+        )
+    cur = currents if batched else currents[None]
+    start = _start_vector(initial, prior, names)
+    start = np.broadcast_to(start, cur.shape[:1] + (len(names),))
+    fit_idx = [names.index(n) for n in fit_names]
+    if np.any(start[:, fit_idx] <= 0) or not np.all(np.isfinite(start)):
+        raise DrivecalError(f"{source}: initial values of {', '.join(fit_names)} must be positive and finite.")
+    z0 = np.log(start[:, fit_idx] / np.asarray(prior.vector(fit_names)))
+    solved = jax.device_get(
+        _solve_batch(jnp.asarray(cur), jnp.asarray(z0), prior, experiment, fit_names, options)
+    )
+
+    m = experiment.num_samples * 2
+    t_factor = float(stats.t.ppf(0.975, m - len(fit_names)))
+    b = cur.shape[0]
+    estimate = np.broadcast_to(np.asarray(prior.vector(names)), (b, len(names))).copy()
+    se = np.full((b, len(names)), np.nan)
+    estimate[:, fit_idx] = solved.theta
+    se[:, fit_idx] = np.sqrt(np.diagonal(solved.covariance, axis1=-2, axis2=-1))
+    ci95 = np.stack([estimate - t_factor * se, estimate + t_factor * se], axis=-1)
+    calib = Calibration(
+        names=tuple(names),
+        estimate=estimate,
+        se=se,
+        ci95=ci95,
+        identifiable=tuple(n in fit_names for n in names),
+        fit_names=fit_names,
+        covariance=np.asarray(solved.covariance),
+        sigma_hat=np.asarray(solved.sigma_hat),
+        rss=np.asarray(solved.rss),
+        iterations=np.asarray(solved.iterations),
+        converged=np.asarray(solved.converged),
+        result_code=np.asarray(solved.result_code),
+        initial=np.array(start),
+        prior=prior,
+        identifiability=ident,
+        num_residuals=m,
+        t_factor=t_factor,
+        source=source,
+    )
+    return calib if batched else calib[0]
+
+
+def fit(
+    bench: BenchData,
+    prior: MotorParams,
+    *,
+    initial: MotorParams | np.ndarray | None = None,
+    names: tuple[str, ...] = ESTIMATED,
+    options: FitOptions = FitOptions(),
+) -> Calibration:
+    """Calibrate a motor from bench data.
+
+    Identifiability is judged first at ``prior``; parameters the bench run
+    cannot identify are held at their prior and reported as such.
+
+    Args:
+        bench: the recorded run.
+        prior: nominal motor (datasheet values) and fixed parameters.
+        initial: starting point (default: the prior).
+        names: parameters to estimate.
+        options: solver settings.
+    """
+    return fit_currents(
+        bench.experiment(), bench.currents, prior, initial=initial, names=names, options=options, source=bench.source
+    )
+
+
+def fit_history(
+    bench: BenchData,
+    prior: MotorParams,
+    calibration: Calibration,
+    options: FitOptions = FitOptions(),
+) -> np.ndarray:
+    """The accepted LM iterates of ``calibration``'s fit, for convergence plots.
+
+    Re-runs the same solve (same start, same tolerances) with a recorder on
+    optimistix's verbose hook; not compiled for speed.
+
+    Returns:
+        (K, len(calibration.fit_names)) parameter values (SI), the start first.
+    """
+    names = calibration.fit_names
+    idx = [calibration.names.index(n) for n in names]
+    z0 = np.log(np.asarray(calibration.initial)[idx] / np.asarray(prior.vector(names)))
+    record: list[np.ndarray] = []
+
+    def recorder(**values):
+        jax.debug.callback(lambda y: record.append(np.asarray(y)), values["y_last_accepted_step"][1], ordered=True)
+
+    _solve_one(jnp.asarray(bench.currents), jnp.asarray(z0), prior, bench.experiment(), names, options, recorder)
+    z = [z0] + [r for r in record]
+    unique = [z[0]] + [b for a, b in zip(z, z[1:]) if not np.array_equal(a, b)]
+    return np.asarray(prior.vector(names)) * np.exp(np.asarray(unique))

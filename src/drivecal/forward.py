@@ -1,0 +1,122 @@
+"""The differentiable forward model: predicted i_d, i_q at the sample instants.
+
+All segments of an experiment are laid end to end in one sample axis of length
+M, with a flag marking where each segment starts (the state is reset there to
+the segment's initial state). One ``jax.lax.scan`` then covers any plan, so the
+compiled function depends only on M, not on how many segments there are, and
+it ``jit``s, ``vmap``s and differentiates (``jax.jacfwd``) cleanly.
+
+Integration: classical RK4 with one step per sample period, the input held
+between samples exactly as the inverter holds it. At 20 kHz and millisecond
+electrical time constants its error is ~1e-9 A (see tests/test_forward.py).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .motor import MotorParams, dq_derivatives
+from .plan import Plan
+
+
+class Experiment(eqx.Module):
+    """What was applied on the bench, on the sample grid (a pytree of arrays).
+
+    Attributes:
+        voltages: applied ``[v_d, v_q]`` (V), shape (M, 2); row k acts on ``[t_k, t_k+1)``.
+        locked: 1.0 where the rotor is locked, 0.0 where free, shape (M,).
+        segment_start: True on the first sample of each segment, shape (M,).
+        initial_state: ``[i_d, i_q, w_m, theta_m]`` (A, A, rad/s, rad) a segment
+            starts from, read on its first sample, shape (M, 4).
+        sample_period: seconds between samples, scalar.
+    """
+
+    voltages: jnp.ndarray
+    locked: jnp.ndarray
+    segment_start: jnp.ndarray
+    initial_state: jnp.ndarray
+    sample_period: jnp.ndarray
+
+    @property
+    def num_samples(self) -> int:
+        """M, the number of sample instants."""
+        return int(self.voltages.shape[-2])
+
+    @classmethod
+    def from_segments(
+        cls,
+        voltages: list[np.ndarray],
+        locked: list[bool],
+        sample_period: float,
+        initial_states: list[np.ndarray] | None = None,
+    ) -> Experiment:
+        """Lay segments end to end.
+
+        Args:
+            voltages: per segment, ``[v_d, v_q]`` (V), shape (N_s, 2).
+            locked: per segment, whether the rotor is locked.
+            sample_period: seconds between samples.
+            initial_states: per segment, the starting state (default: rest).
+        """
+        starts, lock, x0 = [], [], []
+        for s, v in enumerate(voltages):
+            n = v.shape[0]
+            start = np.zeros(n, dtype=bool)
+            start[0] = True
+            starts.append(start)
+            lock.append(np.full(n, float(locked[s])))
+            init = np.zeros(4) if initial_states is None else np.asarray(initial_states[s], dtype=float)
+            x0.append(np.broadcast_to(init, (n, 4)))
+        return cls(
+            voltages=jnp.asarray(np.concatenate(voltages, axis=0), dtype=float),
+            locked=jnp.asarray(np.concatenate(lock)),
+            segment_start=jnp.asarray(np.concatenate(starts)),
+            initial_state=jnp.asarray(np.concatenate(x0, axis=0)),
+            sample_period=jnp.asarray(float(sample_period)),
+        )
+
+    @classmethod
+    def from_plan(cls, plan: Plan) -> Experiment:
+        """The experiment a plan commands, every segment starting from rest."""
+        plan.check_feasible()
+        return cls.from_segments(
+            [seg.voltages(plan.sample_rate) for seg in plan.segments],
+            [seg.locked for seg in plan.segments],
+            plan.sample_period,
+        )
+
+
+def rk4_step(state: jnp.ndarray, v_dq: jnp.ndarray, motor: MotorParams, locked: Any, dt: Any) -> jnp.ndarray:
+    """One classical Runge-Kutta step of length ``dt`` (s) with the input held."""
+    def f(x):
+        return dq_derivatives(x, v_dq, motor, locked)
+
+    k1 = f(state)
+    k2 = f(state + 0.5 * dt * k1)
+    k3 = f(state + 0.5 * dt * k2)
+    k4 = f(state + dt * k3)
+    return state + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+
+
+def simulate_states(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
+    """Predicted state at every sample instant, shape (M, 4) (A, A, rad/s, rad)."""
+    dt = experiment.sample_period
+
+    def step(x, sample):
+        v_dq, locked, start, x0 = sample
+        x = jnp.where(start, x0, x)
+        return rk4_step(x, v_dq, motor, locked, dt), x
+
+    inputs = (experiment.voltages, experiment.locked, experiment.segment_start, experiment.initial_state)
+    _, states = jax.lax.scan(step, experiment.initial_state[0], inputs)
+    return states
+
+
+def predict_currents(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
+    """Predicted ``[i_d, i_q]`` (A) at every sample instant, shape (M, 2)."""
+    return simulate_states(motor, experiment)[:, :2]

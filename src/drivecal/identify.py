@@ -1,0 +1,211 @@
+"""Identifiability before fitting: can this experiment pin these parameters down?
+
+From the sensitivity Jacobian ``J = d(predicted currents)/d(theta)`` at the
+nominal motor (forward mode: four parameters, thousands of outputs):
+
+* jaxterity's ``identifiability_from_jacobian`` gives rank, condition number
+  and weak parameters;
+* parameters whose column is zero are *dead*: the data does not move when they
+  do (e.g. lambda_m on a locked rotor), named with the reason;
+* parameters that only move together with others (a null direction of J once
+  the dead ones are removed) are *confounded*;
+* the predicted 95 % CI half-widths ``t * sigma * sqrt(diag((J^T J)^-1))`` of the
+  identifiable rest, for a given sensor noise, before any data exists.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import io
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy import stats
+
+from .forward import Experiment, predict_currents
+from .motor import ESTIMATED, MotorParams
+
+#: A parameter whose relative sensitivity is below this fraction of the
+#: strongest one is dead: at double precision it is zero.
+DEAD_TOL = 1e-9
+#: Conditioning ceiling (column-normalised J) for the verdict "identifiable".
+COND_MAX = 1e6
+
+
+@functools.partial(jax.jit, static_argnames=("names",))
+def sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...] = ESTIMATED) -> jnp.ndarray:
+    """``d(i_d, i_q at every sample)/d(theta)``, shape (2M, len(names)), A per unit of theta.
+
+    Rows alternate i_d, i_q sample by sample (the flattening of (M, 2)).
+    """
+    theta = motor.vector(names)
+
+    def currents(th):
+        return predict_currents(motor.with_vector(names, th), experiment).reshape(-1)
+
+    return jax.jacfwd(currents)(theta)
+
+
+@dataclasses.dataclass(frozen=True)
+class Identifiability:
+    """What an experiment can identify, judged at a nominal motor.
+
+    Attributes:
+        names: candidate parameters, in Jacobian-column order.
+        rank: numerical rank of the column-normalised Jacobian.
+        condition_number: of the identifiable subspace (jaxterity's convention:
+            finite even when rank-deficient; read ``rank`` first).
+        identifiable: full rank and well conditioned.
+        weak_params: parameters barely constrained though the rank is full.
+        dead_params: parameters with zero sensitivity.
+        confounded_params: parameters that only move together with others.
+        reasons: why each non-identifiable parameter is not identifiable.
+        singular_values: of the column-normalised Jacobian, descending.
+        sensitivity: ``||dI/d ln(theta_i)||`` (A): current change per relative
+            change of each parameter.
+        fit_names: the parameters a fit can estimate (the rest are held at their prior).
+        noise_sigma: sensor noise (A) assumed for the predictions below.
+        num_residuals: 2M, the current samples (i_d and i_q) of the experiment.
+        predicted_se: predicted standard error of each parameter (its unit),
+            NaN where not identifiable.
+        predicted_ci95: predicted 95 % CI half-width (its unit), NaN where not identifiable.
+    """
+
+    names: tuple[str, ...]
+    rank: int
+    condition_number: float
+    identifiable: bool
+    weak_params: tuple[str, ...]
+    dead_params: tuple[str, ...]
+    confounded_params: tuple[str, ...]
+    reasons: dict[str, str]
+    singular_values: tuple[float, ...]
+    sensitivity: tuple[float, ...]
+    fit_names: tuple[str, ...]
+    noise_sigma: float
+    num_residuals: int
+    predicted_se: tuple[float, ...]
+    predicted_ci95: tuple[float, ...]
+
+    def to_dict(self) -> dict:
+        """The JSON ``identifiability`` block."""
+        def finite(x):
+            return None if not math.isfinite(x) else x
+
+        return {
+            "rank": self.rank,
+            "num_params": len(self.names),
+            "condition_number": finite(self.condition_number),
+            "identifiable": self.identifiable,
+            "weak_params": list(self.weak_params),
+            "dead_params": list(self.dead_params),
+            "confounded_params": list(self.confounded_params),
+            "reasons": dict(self.reasons),
+            "singular_values": list(self.singular_values),
+            "sensitivity": dict(zip(self.names, self.sensitivity)),
+            "noise_sigma": self.noise_sigma,
+            "predicted_se": {n: finite(v) for n, v in zip(self.names, self.predicted_se)},
+            "predicted_ci95": {n: finite(v) for n, v in zip(self.names, self.predicted_ci95)},
+        }
+
+
+def _jaxterity_report(jacobian: np.ndarray, names: tuple[str, ...]):
+    # Importing the recipes pulls in MuJoCo, which print()s a warning; keep it
+    # off our stdout (the CLI's --json output must stay parseable).
+    with contextlib.redirect_stdout(io.StringIO()):
+        from jaxterity.sysid.recipes import identifiability_from_jacobian
+
+    return identifiability_from_jacobian(jacobian, names=names, cond_max=COND_MAX)
+
+
+def _why_dead(name: str, experiment: Experiment) -> str:
+    """A plain-language reason a parameter has no effect on the currents."""
+    volts = np.asarray(experiment.voltages)
+    locked = np.asarray(experiment.locked) > 0.5
+    if name == "lambda_m" and locked.all():
+        return "no free-rotor segment (back-EMF needs the rotor to turn)"
+    if name == "Ld" and not np.any(volts[:, 0]) and locked.all():
+        return "no d-axis excitation (i_d never changes)"
+    if name == "Lq" and not np.any(volts[:, 1]):
+        return "no q-axis excitation (i_q never changes)"
+    if name == "R" and not np.any(volts):
+        return "no voltage applied, so no current flows"
+    return "no effect on the measured currents in this plan"
+
+
+def _confounded(jac_scaled: np.ndarray, names: tuple[str, ...]) -> tuple[str, ...]:
+    """Parameters that load on a null direction of the (live) Jacobian."""
+    if not names:
+        return ()
+    norms = np.linalg.norm(jac_scaled, axis=0)
+    jn = jac_scaled / np.where(norms > 0, norms, 1.0)
+    _, s, vt = np.linalg.svd(jn, full_matrices=False)
+    tol = max(jn.shape) * np.finfo(float).eps * s[0]
+    null = vt[s <= tol]
+    if null.size == 0:
+        return ()
+    loading = np.max(np.abs(null), axis=0)
+    return tuple(n for n, w in zip(names, loading) if w > 1e-3)
+
+
+def assess_identifiability(
+    experiment: Experiment,
+    motor: MotorParams,
+    *,
+    noise_sigma: float = 0.02,
+    names: tuple[str, ...] = ESTIMATED,
+) -> Identifiability:
+    """Judge whether ``experiment`` identifies ``names`` of ``motor``, before any data.
+
+    Args:
+        experiment: the applied voltages and rotor conditions.
+        motor: nominal motor (the datasheet values, or the prior of a fit).
+        noise_sigma: current-sensor noise standard deviation (A), for the
+            predicted intervals.
+        names: the parameters to be estimated.
+    """
+    jac = np.asarray(sensitivity_jacobian(motor, experiment, names))
+    theta = np.asarray(motor.vector(names))
+    jac_scaled = jac * theta  # d I / d ln(theta): unit-free comparison across parameters
+    sensitivity = np.linalg.norm(jac_scaled, axis=0)
+    strongest = float(sensitivity.max()) if sensitivity.size else 0.0
+    dead = tuple(n for n, s in zip(names, sensitivity) if s <= DEAD_TOL * strongest)
+    live = tuple(n for n in names if n not in dead)
+    live_idx = [names.index(n) for n in live]
+    confounded = _confounded(jac_scaled[:, live_idx], live)
+    fit_names = tuple(n for n in live if n not in confounded)
+
+    report = _jaxterity_report(jac, names)
+    reasons = {n: _why_dead(n, experiment) for n in dead}
+    reasons.update({n: "moves the currents only together with " + ", ".join(m for m in confounded if m != n)
+                    for n in confounded})
+
+    m = jac.shape[0]
+    se = np.full(len(names), np.nan)
+    if fit_names:
+        idx = [names.index(n) for n in fit_names]
+        js = jac_scaled[:, idx]
+        cov_rel = noise_sigma**2 * np.linalg.inv(js.T @ js)
+        se[idx] = np.sqrt(np.diag(cov_rel)) * theta[idx]
+    t_factor = float(stats.t.ppf(0.975, max(m - len(fit_names), 1)))
+    return Identifiability(
+        names=tuple(names),
+        rank=int(report.rank),
+        condition_number=float(report.condition_number),
+        identifiable=bool(report.identifiable) and not dead and not confounded,
+        weak_params=tuple(report.weak_params),
+        dead_params=dead,
+        confounded_params=confounded,
+        reasons=reasons,
+        singular_values=tuple(float(s) for s in report.singular_values),
+        sensitivity=tuple(float(s) for s in sensitivity),
+        fit_names=fit_names,
+        noise_sigma=float(noise_sigma),
+        num_residuals=int(m),
+        predicted_se=tuple(float(s) for s in se),
+        predicted_ci95=tuple(float(t_factor * s) for s in se),
+    )
