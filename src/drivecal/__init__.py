@@ -5,14 +5,37 @@ Everything numeric runs in float64 (Fisher matrices need it), so importing
 drivecal switches JAX to double precision.
 """
 
+import os as _os
+from pathlib import Path as _Path
+
 import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)
 
+
+def _enable_compilation_cache() -> None:
+    """Keep compiled kernels on disk so a second drivecal process does not recompile.
+
+    Opt-in with ``DRIVECAL_JAX_CACHE=1``: kernels go to ``$XDG_CACHE_HOME/drivecal/jax``
+    (``~/.cache/...``), or to ``DRIVECAL_JAX_CACHE_DIR``. Off by default because
+    XLA:CPU logs a loud (harmless) machine-feature warning on every cache hit.
+    """
+    if _os.environ.get("DRIVECAL_JAX_CACHE", "0").strip().lower() not in ("1", "on", "true", "yes"):
+        return
+    base = _os.environ.get("XDG_CACHE_HOME") or str(_Path.home() / ".cache")
+    path = _os.environ.get("DRIVECAL_JAX_CACHE_DIR") or str(_Path(base) / "drivecal" / "jax")
+    _jax.config.update("jax_compilation_cache_dir", path)
+    # drivecal's kernels compile in well under JAX's default 1 s threshold.
+    _jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+
+
+_enable_compilation_cache()
+
 from .bench import engine_bench, synthetic_bench  # noqa: E402
 from .data import BenchData, SegmentData  # noqa: E402
 from .errors import DataError, DrivecalError, PlanError  # noqa: E402
-from .fit import Calibration, FitOptions, fit, fit_currents, fit_history  # noqa: E402
+from .demo import DemoResult, DesignRun, datasheet_guess, run_demo, write_demo_outputs  # noqa: E402
+from .fit import Calibration, FitOptions, fit, fit_currents  # noqa: E402
 from .forward import Experiment, predict_currents, simulate_states  # noqa: E402
 from .identify import Identifiability, assess_identifiability, sensitivity_jacobian  # noqa: E402
 from .motor import DEFAULT_MOTOR, ESTIMATED, FIXED, UNITS, MotorParams, dq_derivatives  # noqa: E402
@@ -43,11 +66,15 @@ __all__ = [
     "engine_bench",
     "fit",
     "fit_currents",
-    "fit_history",
     "locked_q_step_plan",
     "predict_currents",
     "sensitivity_jacobian",
     "simulate_states",
     "synthetic_bench",
+    "DemoResult",
+    "DesignRun",
+    "datasheet_guess",
+    "run_demo",
+    "write_demo_outputs",
     "__version__",
 ]

@@ -91,16 +91,24 @@ class Experiment(eqx.Module):
         )
 
 
-def rk4_step(state: jnp.ndarray, v_dq: jnp.ndarray, motor: MotorParams, locked: Any, dt: Any) -> jnp.ndarray:
-    """One classical Runge-Kutta step of length ``dt`` (s) with the input held."""
+def rk4_step(state: tuple, v_dq: Any, motor: MotorParams, locked: Any, dt: Any) -> tuple:
+    """One classical Runge-Kutta step of length ``dt`` (s) with the input held.
+
+    ``state`` is the tuple ``(i_d, i_q, w_m, theta_m)``; so is the result.
+    """
     def f(x):
         return dq_derivatives(x, v_dq, motor, locked)
 
+    def axpy(x, k, h):
+        return tuple(xi + h * ki for xi, ki in zip(x, k))
+
     k1 = f(state)
-    k2 = f(state + 0.5 * dt * k1)
-    k3 = f(state + 0.5 * dt * k2)
-    k4 = f(state + dt * k3)
-    return state + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    k2 = f(axpy(state, k1, 0.5 * dt))
+    k3 = f(axpy(state, k2, 0.5 * dt))
+    k4 = f(axpy(state, k3, dt))
+    return tuple(
+        x + (dt / 6.0) * (a + 2.0 * b + 2.0 * c + d) for x, a, b, c, d in zip(state, k1, k2, k3, k4)
+    )
 
 
 def simulate_states(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
@@ -109,11 +117,12 @@ def simulate_states(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
 
     def step(x, sample):
         v_dq, locked, start, x0 = sample
-        x = jnp.where(start, x0, x)
-        return rk4_step(x, v_dq, motor, locked, dt), x
+        x = tuple(jnp.where(start, x0[i], x[i]) for i in range(4))
+        return rk4_step(x, v_dq, motor, locked, dt), jnp.stack(x)
 
     inputs = (experiment.voltages, experiment.locked, experiment.segment_start, experiment.initial_state)
-    _, states = jax.lax.scan(step, experiment.initial_state[0], inputs)
+    x_init = tuple(experiment.initial_state[0, i] for i in range(4))
+    _, states = jax.lax.scan(step, x_init, inputs)
     return states
 
 

@@ -96,17 +96,20 @@ class MotorParams(eqx.Module):
         return {n: float(getattr(self, n)) for n in ESTIMATED + FIXED}
 
 
-def dq_derivatives(state: jnp.ndarray, v_dq: jnp.ndarray, motor: MotorParams, locked: Any) -> jnp.ndarray:
+def dq_derivatives(state: Any, v_dq: Any, motor: MotorParams, locked: Any) -> tuple:
     """Time derivative of the PMSM state.
 
     Args:
-        state: ``[i_d, i_q, w_m, theta_m]`` (A, A, rad/s, rad), shape (4,).
-        v_dq: applied ``[v_d, v_q]`` (V), shape (2,).
+        state: ``(i_d, i_q, w_m, theta_m)`` (A, A, rad/s, rad): an array of
+            shape (4,) or any sequence of four scalars/arrays.
+        v_dq: applied ``(v_d, v_q)`` (V), same convention.
         motor: the machine's parameters.
         locked: rotor clamped (standstill test); a Python or traced boolean.
 
     Returns:
-        ``[di_d/dt, di_q/dt, dw_m/dt, dtheta_m/dt]`` (A/s, A/s, rad/s^2, rad/s), shape (4,).
+        ``(di_d/dt, di_q/dt, dw_m/dt, dtheta_m/dt)`` (A/s, A/s, rad/s^2, rad/s)
+        as a tuple (``jnp.stack`` it for an array). Keeping the four
+        components apart lets a batched rollout work on contiguous arrays.
     """
     i_d, i_q, w_m = state[0], state[1], state[2]
     v_d, v_q = v_dq[0], v_dq[1]
@@ -114,9 +117,9 @@ def dq_derivatives(state: jnp.ndarray, v_dq: jnp.ndarray, motor: MotorParams, lo
     di_d = (v_d - motor.R * i_d + w_e * motor.Lq * i_q) / motor.Ld
     di_q = (v_q - motor.R * i_q - w_e * (motor.Ld * i_d + motor.lambda_m)) / motor.Lq
     torque = electromagnetic_torque(i_d, i_q, motor)
-    dw_m = (torque - motor.B * w_m - motor.T_load) / motor.J
     free = 1.0 - jnp.asarray(locked, dtype=float)
-    return jnp.stack([di_d, di_q, free * dw_m, free * w_m])
+    dw_m = free * (torque - motor.B * w_m - motor.T_load) / motor.J
+    return di_d, di_q, dw_m, free * w_m
 
 
 def electromagnetic_torque(i_d: Any, i_q: Any, motor: MotorParams) -> Any:
