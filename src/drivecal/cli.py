@@ -55,33 +55,35 @@ def _design_table(run: drivecal.DesignRun, truth: drivecal.MotorParams) -> Table
     table = Table(title=f"{run.label}: {cal.message}, {int(cal.iterations)} LM steps, "
                         f"sigma_hat {float(cal.sigma_hat) * 1e3:.2f} mA", title_justify="left")
     for col in ("parameter", "unit", "true", "initial", "estimate", "error [%]", "error [SE]", "95 % CI"):
-        table.add_column(col, justify="left" if col in ("parameter", "unit", "95 % CI") else "right")
+        # one row per parameter: never wrap a number
+        table.add_column(col, justify="left" if col in ("parameter", "unit", "95 % CI") else "right", no_wrap=True)
     for i, n in enumerate(cal.names):
         e = errors[n]
         if cal.identifiable[i]:
             ci = f"[{_fmt(cal.ci95[i, 0])}, {_fmt(cal.ci95[i, 1])}]"
             est, err_se = _fmt(cal.estimate[i]), f"{e['error_in_se']:+.2f}"
         else:
-            ci = f"[red]not identifiable: {cal.identifiability.reasons.get(n, '')}[/red]"
+            ci = "[red]not identifiable[/red]"
             est, err_se = f"[dim]{_fmt(cal.estimate[i])} (prior)[/dim]", "-"
         table.add_row(n, drivecal.UNITS[n], _fmt(e["true"]), _fmt(cal.initial[i]), est,
                       f"{e['error_percent']:+.4f}", err_se, ci)
     return table
 
 
-def _identifiability_line(run: drivecal.DesignRun) -> str:
+def _identifiability_lines(run: drivecal.DesignRun) -> str:
     ident = run.calibration.identifiability
-    dead = ", ".join(ident.dead_params) or "none"
     verdict = "[green]identifiable[/green]" if ident.identifiable else "[red]NOT identifiable[/red]"
-    return (f"identifiability ({run.label}): rank {ident.rank}/{len(ident.names)}, condition number "
-            f"{ident.condition_number:.3g}, dead: {dead} -> {verdict}")
+    lines = [f"identifiability ({run.label}): rank {ident.rank}/{len(ident.names)}, condition number "
+             f"{ident.condition_number:.3g} -> {verdict}"]
+    lines += [f"  [red]{name}[/red]: {why}" for name, why in ident.reasons.items()]
+    return "\n".join(lines)
 
 
 def _print_demo(result: drivecal.DemoResult, console: Console) -> None:
     console.print(f"[bold]drivecal demo[/bold]: synthetic bench on the Jaxonomy engine, sensor noise "
                   f"{result.noise * 1e3:g} mA, seed {result.seed}; start = prior = datasheet guess 30-50 % off\n")
     for run in (result.default, result.poor):
-        console.print(_identifiability_line(run))
+        console.print(_identifiability_lines(run))
         console.print(_design_table(run, result.truth))
         console.print()
     poor = result.poor.calibration
@@ -112,7 +114,8 @@ def demo(out_dir, noise, seed, as_json):
 
     With --out DIR it also writes DIR/report.json and PNG figures.
     """
-    console = Console(stderr=as_json)
+    # A pipe or a log file gets a fixed width wide enough for the table.
+    console = Console(stderr=as_json, width=None if sys.stdout.isatty() else 120)
     with console.status("running the synthetic bench and fitting...") as status:
         result = drivecal.run_demo(noise=noise, seed=seed, progress=lambda m: status.update(m) if not as_json else None)
         if out_dir is not None:
@@ -126,15 +129,14 @@ def demo(out_dir, noise, seed, as_json):
             console.print(f"wrote {len(written)} files to {out_dir}/: " + ", ".join(p.name for p in written))
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning bad input into one line and exit status 2."""
     try:
-        cli.main(args=argv, prog_name="drivecal", standalone_mode=False)
-    except click.exceptions.NoArgsIsHelp as exc:  # pragma: no cover - click prints help itself
-        raise SystemExit(0) from exc
+        rv = cli.main(args=argv, prog_name="drivecal", standalone_mode=False)
+        return rv if isinstance(rv, int) else 0
     except click.UsageError as exc:
-        hint = f" (see 'drivecal {exc.ctx.info_name if exc.ctx else ''} --help')".replace("drivecal drivecal", "drivecal")
-        click.echo(f"drivecal: error: {exc.format_message()}{hint}", err=True)
+        command = exc.ctx.command_path if exc.ctx else "drivecal"
+        click.echo(f"drivecal: error: {exc.format_message()} (see '{command} --help')", err=True)
         raise SystemExit(EXIT_BAD_INPUT)
     except click.Abort:
         click.echo("drivecal: aborted", err=True)
@@ -147,4 +149,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    main(sys.argv[1:])
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,100 @@
+"""The drivecal command: demo output, JSON, and one-line errors with exit status 2."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivecal.cli import main
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory):
+    """One real `drivecal demo --json --out DIR` in a fresh process."""
+    out = tmp_path_factory.mktemp("demo") / "out"
+    exe = Path(sys.executable).with_name("drivecal")
+    proc = subprocess.run([str(exe), "demo", "--json", "--out", str(out)], capture_output=True, text=True,
+                          timeout=600)
+    return proc, out
+
+
+def test_demo_json_parses_and_carries_the_numbers(demo_run):
+    proc, _ = demo_run
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(proc.stdout)  # stdout is JSON only
+    assert doc["noise_sigma"] == 0.02 and doc["seed"] == 1
+    good = doc["designs"]["default"]
+    assert good["converged"] is True
+    assert good["identifiability"]["rank"] == 4 and good["identifiability"]["dead_params"] == []
+    for name, p in good["parameters"].items():
+        true = doc["truth"][name]
+        assert p["identifiable"] is True
+        assert abs(p["estimate"] - true) < 3 * p["se"]
+        assert abs(p["estimate"] - true) / true < 5e-4
+        assert p["ci95"][0] < true < p["ci95"][1] or abs(p["estimate"] - true) > 1.9 * p["se"]
+    poor = doc["designs"]["locked_q_step"]
+    assert poor["identifiability"]["rank"] == 2
+    assert sorted(poor["identifiability"]["dead_params"]) == ["Ld", "lambda_m"]
+    assert poor["parameters"]["Ld"]["identifiable"] is False
+    assert poor["parameters"]["lambda_m"]["identifiable"] is False
+    assert poor["parameters"]["lambda_m"]["se"] is None
+
+
+def test_demo_writes_report_and_figures(demo_run):
+    proc, out = demo_run
+    assert proc.returncode == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert "report.json" in names
+    for fig in ("excitation_default.png", "convergence_default.png", "estimates_default.png",
+                "identifiability.png", "excitation_locked_q_step.png", "estimates_locked_q_step.png"):
+        assert fig in names
+        assert (out / fig).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not any(n.endswith(".part") for n in names)  # nothing half-written
+    report = json.loads((out / "report.json").read_text())
+    assert report == json.loads(proc.stdout)
+    cov = np.asarray(report["designs"]["default"]["covariance"])
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+
+
+@pytest.mark.parametrize(
+    "args, fragment",
+    [
+        (["demo", "--noise", "-1"], "--noise"),
+        (["demo", "--noise", "abc"], "--noise"),
+        (["demo", "--noise", "nan"], "--noise"),
+        (["demo", "--seed", "-3"], "--seed"),
+        (["demo", "--bogus"], "--bogus"),
+        (["nonsense"], "nonsense"),
+    ],
+)
+def test_bad_arguments_give_one_line_and_exit_2(args, fragment, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(args)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert err.startswith("drivecal: error:") and fragment in err
+    assert "Traceback" not in err
+
+
+def test_out_that_is_a_file_is_refused(tmp_path, capsys):
+    target = tmp_path / "report.txt"
+    target.write_text("keep me")
+    with pytest.raises(SystemExit) as exc:
+        main(["demo", "--out", str(target)])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(target) in err
+    assert target.read_text() == "keep me"
+
+
+def test_help_is_there_for_every_command(capsys):
+    for args in (["--help"], ["demo", "--help"]):
+        assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "--noise" in out and "[A]" in out
