@@ -19,7 +19,10 @@ Prints a table and writes benchmarks/results/bench_core.json.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
+import os
 import platform
 import subprocess
 import sys
@@ -98,8 +101,7 @@ def seed_bench(plan: dc.Plan, motor: dc.MotorParams, seed: int, sigma: float = 0
 
 def seed_workflow(truth, guess):
     """Bench, identifiability and Gauss-Newton for both designs, the tutorial's way."""
-    with_stdout = __import__("contextlib").redirect_stdout(__import__("io").StringIO())
-    with with_stdout:
+    with contextlib.redirect_stdout(io.StringIO()):  # MuJoCo prints on import
         from jaxterity.sysid.recipes import identifiability_from_jacobian
     for plan, seed in ((dc.default_plan(), 1), (dc.locked_q_step_plan(), 3)):
         y = seed_bench(plan, truth, seed)
@@ -199,7 +201,7 @@ def main() -> None:
 
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(json.dumps({
-        "machine": {"platform": platform.platform(), "processor": platform.processor(), "cpu_count": __import__("os").cpu_count(),
+        "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(),
                     "jax": jax.__version__, "drivecal": dc.__version__},
         "seed_fit_s": t_seed_fit,
         "drivecal_fit_first_s": t_first,

@@ -30,7 +30,7 @@ from .data import BenchData
 from .errors import DrivecalError
 from .forward import Experiment, predict_currents
 from .identify import Identifiability, assess_identifiability
-from .motor import DESCRIPTIONS, ESTIMATED, FIXED, UNITS, MotorParams
+from .motor import ESTIMATED, FIXED, UNITS, MotorParams
 
 
 @dataclasses.dataclass(frozen=True)
@@ -324,7 +324,8 @@ class Calibration:
                 lines.append(f"  {n:<10} {UNITS[n]:<6} {self.estimate[i]:>13.6g} {self.se[i]:>11.3g} {ci:>29}  yes")
             else:
                 why = self.identifiability.reasons.get(n, "")
-                lines.append(f"  {n:<10} {UNITS[n]:<6} {self.estimate[i]:>13.6g} {'-':>11} {'held at prior':>29}  NO: {why}")
+                held = "held at prior"
+                lines.append(f"  {n:<10} {UNITS[n]:<6} {self.estimate[i]:>13.6g} {'-':>11} {held:>29}  NO: {why}")
         return "\n".join(lines)
 
 
