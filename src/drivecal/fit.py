@@ -106,16 +106,12 @@ def _solve_one(currents, z0, prior, experiment, names, options, verbose) -> _Sol
     theta = theta0 * jnp.exp(sol.value)
     r = residual(sol.value, None)
 
-    def currents_of(th):
-        return predict_currents(prior.with_vector(names, th), experiment).reshape(-1)
-
-    jac = jax.jacfwd(currents_of)(theta)
-    m, n = jac.shape
+    # d r / d z = d I / d ln(theta): the Jacobian in relative units, which is
+    # also better conditioned to invert than the physical J^T J (ohms vs henries).
+    js = jax.jacfwd(lambda z: residual(z, None))(sol.value)
+    m, n = js.shape
     rss = r @ r
     s2 = rss / (m - n)
-    # Invert in relative units (d I / d ln theta): the physical J^T J spans
-    # ten decades between ohms and henries.
-    js = jac * theta
     cov = s2 * jnp.linalg.inv(js.T @ js) * jnp.outer(theta, theta)
     ok = (
         (sol.result == optx.RESULTS.successful)
