@@ -32,14 +32,17 @@ def _enable_compilation_cache() -> None:
 _enable_compilation_cache()
 
 from .bench import engine_bench, synthetic_bench  # noqa: E402
-from .data import BenchData, SegmentData  # noqa: E402
+from .data import BenchData, SegmentData, bench_from_frame, load_bench  # noqa: E402
 from .errors import DataError, DrivecalError, PlanError  # noqa: E402
 from .demo import DemoResult, DesignRun, datasheet_guess, run_demo, write_demo_outputs  # noqa: E402
 from .fit import Calibration, FitOptions, fit, fit_currents  # noqa: E402
 from .forward import Experiment, predict_currents, simulate_states  # noqa: E402
-from .identify import Identifiability, assess_identifiability, sensitivity_jacobian  # noqa: E402
+from .identify import Identifiability, assess_identifiability, check_requested, sensitivity_jacobian  # noqa: E402
 from .motor import DEFAULT_MOTOR, ESTIMATED, FIXED, UNITS, MotorParams, dq_derivatives  # noqa: E402
 from .plan import Plan, Segment, default_plan, locked_q_step_plan  # noqa: E402
+from .config import MotorFile, load_motor, load_plan, motor_from_dict, plan_from_dict  # noqa: E402
+from .design import DesignReport, assess_design  # noqa: E402
+from . import waveforms  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -76,5 +79,16 @@ __all__ = [
     "datasheet_guess",
     "run_demo",
     "write_demo_outputs",
+    "DesignReport",
+    "MotorFile",
+    "assess_design",
+    "check_requested",
+    "bench_from_frame",
+    "load_bench",
+    "load_motor",
+    "load_plan",
+    "motor_from_dict",
+    "plan_from_dict",
+    "waveforms",
     "__version__",
 ]

@@ -129,6 +129,208 @@ def demo(out_dir, noise, seed, as_json):
             console.print(f"wrote {len(written)} files to {out_dir}/: " + ", ".join(p.name for p in written))
 
 
+_MOTOR_HELP = ("Motor file (TOML): nominal R, Ld, Lq, lambda_m (the prior) and fixed pole_pairs, J, B. "
+               "Default: the 48 V demo motor.")
+
+
+def _motor_option(f):
+    return click.option("--motor", "motor_path", type=click.Path(dir_okay=False), default=None, help=_MOTOR_HELP)(f)
+
+
+def _console(as_json: bool) -> Console:
+    # A pipe or a log file gets a fixed width wide enough for the tables.
+    return Console(stderr=as_json, width=None if sys.stdout.isatty() else 120)
+
+
+@cli.command()
+@click.argument("plan_path", metavar="PLAN.toml", type=click.Path(dir_okay=False))
+@_motor_option
+@click.option("--noise", type=_Positive(), default=0.02, show_default=True,
+              help="Current-sensor noise standard deviation [A] added to i_d and i_q.")
+@click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True, help="Seed of the sensor noise.")
+@click.option("--speed/--no-speed", "record_speed", default=True, show_default=True,
+              help="Also write the measured mechanical speed w_m [rad/s] (an encoder; noise-free).")
+@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False),
+              help="Bench file to write: .csv, .parquet or .mat (format from the suffix).")
+def simulate(plan_path, motor_path, noise, seed, record_speed, out_path):
+    """Run PLAN.toml on the synthetic bench and write a bench file.
+
+    The plan runs on the Jaxonomy engine (its PMSM block and adaptive solver)
+    with the motor of --motor, currents are sampled at the plan's sample rate
+    and seeded Gaussian noise is added. The file has the bench-file columns
+    (segment, locked, t, v_d, v_q, i_d, i_q, w_m) and can be fitted with
+    `drivecal fit`.
+    """
+    from pathlib import Path
+
+    out = Path(out_path)
+    if out.suffix.lower() not in (".csv", ".parquet", ".mat"):
+        raise drivecal.DrivecalError(f"--out {out}: unknown format '{out.suffix}'; use a .csv, .parquet or .mat name.")
+    plan = drivecal.load_plan(plan_path)
+    motor = drivecal.load_motor(motor_path).motor
+    console = _console(False)
+    with console.status(f"running {len(plan.segments)} segment(s) on the Jaxonomy engine..."):
+        bench = drivecal.engine_bench(plan, motor, record_speed=record_speed).add_noise(noise, seed)
+        bench.save(out)
+    console.print(f"wrote {out}: {bench.num_samples} samples in {len(bench.segments)} segment(s) at "
+                  f"{bench.sample_rate:g} Hz, noise {noise * 1e3:g} mA (seed {seed})")
+
+
+def _fit_table(cal: drivecal.Calibration) -> Table:
+    table = Table(title=f"{cal.source}: {cal.message}, {int(cal.iterations)} LM steps, "
+                        f"sigma_hat {float(cal.sigma_hat) * 1e3:.3f} mA", title_justify="left")
+    for col in ("parameter", "unit", "prior", "estimate", "std err", "95 % CI", "rel. CI [%]"):
+        table.add_column(col, justify="left" if col in ("parameter", "unit", "95 % CI") else "right", no_wrap=True)
+    for i, n in enumerate(cal.names):
+        prior = _fmt(float(getattr(cal.prior, n)))
+        if cal.identifiable[i]:
+            half = 0.5 * (cal.ci95[i, 1] - cal.ci95[i, 0])
+            table.add_row(n, drivecal.UNITS[n], prior, _fmt(cal.estimate[i]), f"{cal.se[i]:.3g}",
+                          f"[{_fmt(cal.ci95[i, 0])}, {_fmt(cal.ci95[i, 1])}]", f"±{100 * half / cal.estimate[i]:.3f}")
+        else:
+            table.add_row(n, drivecal.UNITS[n], prior, f"[dim]{_fmt(cal.estimate[i])} (prior)[/dim]", "-",
+                          "[red]not identifiable[/red]", "-")
+    return table
+
+
+@cli.command("fit")
+@click.argument("bench_path", metavar="BENCH", type=click.Path(dir_okay=False))
+@_motor_option
+@click.option("--measured-speed/--simulated-speed", default=True, show_default=True,
+              help="On free segments with a w_m column, use the measured speed as an input (J and B not needed); "
+                   "--simulated-speed integrates the speed from J and B of the motor file instead.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
+              help="Directory for report.json and the PNG figures (created if missing).")
+@click.option("--json", "as_json", is_flag=True, help="Print the result JSON on stdout instead of the table.")
+def fit_command(bench_path, motor_path, measured_speed, out_dir, as_json):
+    """Calibrate R, Ld, Lq, lambda_m from a bench file (.csv, .parquet or .mat).
+
+    \b
+    The file holds one row per sample: segment, locked (0/1), t [s],
+    v_d, v_q [V], i_d, i_q [A], optional w_m [rad/s]; or phase columns
+    i_a, i_b, (i_c), v_a, v_b, (v_c) with theta_e or theta_m [rad].
+    The motor file's values are the starting point and the prior; a parameter
+    the recording cannot identify is held there and reported as such.
+    """
+    motor_file = drivecal.load_motor(motor_path)
+    prior = motor_file.motor
+    bench = drivecal.load_bench(bench_path, pole_pairs=float(prior.pole_pairs), nominal_R=float(prior.R))
+    experiment = bench.experiment(measured_speed=measured_speed)
+    if motor_file.estimate is not None:
+        drivecal.check_requested(motor_file.names, experiment, bench_path)
+    console = _console(as_json)
+    with console.status("checking identifiability and fitting..."):
+        cal = drivecal.fit(bench, prior, names=motor_file.names, measured_speed=measured_speed)
+        payload = cal.to_dict()
+        payload["measured_speed"] = bool(measured_speed and bench.has_measured_speed)
+        payload["drivecal_version"] = drivecal.__version__
+        if out_dir is not None:
+            written = _write_fit_outputs(cal, payload, out_dir)
+    if as_json:
+        click.echo(json.dumps(payload, indent=2))
+        return
+    ident = cal.identifiability
+    verdict = "[green]identifiable[/green]" if ident.identifiable else "[red]NOT fully identifiable[/red]"
+    speed = "measured speed as input" if payload["measured_speed"] else "speed simulated from J and B"
+    console.print(f"identifiability: rank {ident.rank}/{len(ident.names)}, condition number "
+                  f"{ident.condition_number:.3g} -> {verdict}; {speed}")
+    for name, why in ident.reasons.items():
+        console.print(f"  [red]{name}[/red]: {why}")
+    console.print(_fit_table(cal))
+    if out_dir is not None:
+        console.print(f"wrote {len(written)} files to {out_dir}/: " + ", ".join(p.name for p in written))
+
+
+def _write_fit_outputs(cal, payload, out_dir):
+    from drivecal import plots
+    from drivecal.report import prepare_output_dir, save_figure, write_json
+
+    out = prepare_output_dir(out_dir)
+    written = []
+    figures = {
+        "convergence.png": plots.convergence_figure(cal),
+        "estimates.png": plots.estimates_figure(cal),
+        "identifiability.png": plots.identifiability_figure({cal.source: cal.identifiability}),
+    }
+    for name, fig in figures.items():
+        save_figure(fig, out / name)
+        written.append(out / name)
+    write_json(out / "report.json", payload)
+    return written + [out / "report.json"]
+
+
+@cli.command()
+@click.argument("plan_path", metavar="PLAN.toml", type=click.Path(dir_okay=False))
+@_motor_option
+@click.option("--noise", type=_Positive(), default=0.02, show_default=True,
+              help="Expected current-sensor noise standard deviation [A], for the predicted intervals.")
+@click.option("--json", "as_json", is_flag=True, help="Print the assessment JSON on stdout instead of tables.")
+def design(plan_path, motor_path, noise, as_json):
+    """Judge PLAN.toml before bench time: feasibility, identifiability, predicted intervals.
+
+    \b
+    On the nominal motor of --motor it checks
+      - the voltage circle |v_dq| <= v_dc/sqrt(3) of every sample,
+      - the predicted peak current against the plan's current_limit,
+      - that a free spin-up stays stable and under max_speed,
+    then the rank and condition number of the sensitivity Jacobian, dead and
+    weak parameters (with the reason), and the 95 % CI half-width each
+    parameter would get at the given noise. Exit status 2 when the plan is
+    infeasible or cannot identify every parameter.
+    """
+    plan = drivecal.load_plan(plan_path)
+    motor_file = drivecal.load_motor(motor_path)
+    if motor_file.estimate is not None:
+        drivecal.check_requested(motor_file.names, drivecal.Experiment.from_plan(plan), plan_path)
+    report = drivecal.assess_design(plan, motor_file.motor, noise_sigma=noise, names=motor_file.names)
+    if as_json:
+        click.echo(json.dumps(report.to_dict(), indent=2))
+    else:
+        _print_design(report, plan_path, _console(False))
+    if not report.ok:
+        what = []
+        if report.problems:
+            what.append(f"{len(report.problems)} feasibility problem(s)")
+        dead = report.identifiability.dead_params + report.identifiability.confounded_params
+        if dead:
+            what.append("cannot identify " + ", ".join(dead))
+        elif not report.identifiability.identifiable:
+            what.append("is ill-conditioned")
+        raise drivecal.PlanError(f"{plan_path}: the plan {' and '.join(what)}; see the assessment above.")
+
+
+def _print_design(report, plan_path, console: Console) -> None:
+    plan, ident = report.plan, report.identifiability
+    console.print(f"[bold]{plan_path}[/bold]: {len(plan.segments)} segment(s), {plan.num_samples} samples at "
+                  f"{plan.sample_rate:g} Hz; voltage limit {plan.voltage_limit:.2f} V, current limit "
+                  f"{plan.current_limit:g} A")
+    seg_table = Table(title="feasibility on the nominal motor", title_justify="left")
+    for col in ("segment", "rotor", "peak |i_dq| [A]", "at t [s]", "peak w_m [rad/s]"):
+        seg_table.add_column(col, justify="left" if col in ("segment", "rotor") else "right", no_wrap=True)
+    for s in report.segments:
+        seg_table.add_row(s.name, "locked" if s.locked else "free", f"{s.peak_current:.3g}",
+                          f"{s.peak_current_time:.4g}", "-" if s.locked else f"{s.peak_speed:.4g}")
+    console.print(seg_table)
+    for p in report.problems:
+        console.print(f"  [red]problem[/red]: {p}")
+    verdict = "[green]identifiable[/green]" if ident.identifiable else "[red]NOT identifiable[/red]"
+    console.print(f"identifiability: rank {ident.rank}/{len(ident.names)}, condition number "
+                  f"{ident.condition_number:.3g} -> {verdict}")
+    table = Table(title=f"predicted 95 % intervals at noise {ident.noise_sigma * 1e3:g} mA", title_justify="left")
+    for col in ("parameter", "unit", "nominal", "± 95 % CI", "rel. [%]", "identifiable"):
+        table.add_column(col, justify="left" if col in ("parameter", "unit", "identifiable") else "right", no_wrap=True)
+    for i, n in enumerate(ident.names):
+        nominal = float(getattr(report.motor, n))
+        half = ident.predicted_ci95[i]
+        if n in ident.reasons:
+            table.add_row(n, drivecal.UNITS[n], _fmt(nominal), "-", "-", f"[red]no: {ident.reasons[n]}[/red]")
+        else:
+            weak = " (weak)" if n in ident.weak_params else ""
+            table.add_row(n, drivecal.UNITS[n], _fmt(nominal), f"{half:.3g}", f"{100 * half / nominal:.3g}",
+                          "yes" + weak)
+    console.print(table)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning bad input into one line and exit status 2."""
     try:

@@ -1,19 +1,42 @@
 """Bench data: what the bench applied and measured, segment by segment.
 
-The column names follow drivecal's bench-file contract: ``segment``, ``locked``,
-``t`` (s, from 0 in each segment), ``v_d``, ``v_q`` (V), ``i_d``, ``i_q`` (A),
-optional ``w_m`` (rad/s).
+Bench files (CSV, Parquet or MATLAB ``.mat``) hold one row per sample with the
+columns ``segment`` (name), ``locked`` (0/1), ``t`` (s), ``v_d``, ``v_q`` (V),
+``i_d``, ``i_q`` (A) and optionally ``w_m`` (rad/s, measured mechanical speed).
+Instead of dq columns a file may hold phase quantities ``i_a``, ``i_b``
+(``i_c``), ``v_a``, ``v_b`` (``v_c``) (phase-to-neutral, A and V) with a rotor
+angle ``theta_e`` (electrical, rad) or ``theta_m`` (mechanical, rad); they are
+turned into dq with the amplitude-invariant Clarke and Park transforms.
+
+Every check of a file lives in :func:`bench_from_frame`; each failure is one
+:class:`DataError` sentence naming the file, the column and the fix.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .errors import DataError
 from .forward import Experiment
+from .report import atomic_path
+
+#: The dq columns of a bench file, with what each holds.
+DQ_COLUMNS: dict[str, str] = {
+    "segment": "the segment name on every row",
+    "locked": "1 where the rotor is locked, 0 where it turns freely",
+    "t": "the sample time in seconds",
+    "v_d": "the applied d-axis voltage in V",
+    "v_q": "the applied q-axis voltage in V",
+    "i_d": "the measured d-axis current in A",
+    "i_q": "the measured q-axis current in A",
+}
+#: File formats by suffix.
+FORMATS = (".csv", ".parquet", ".mat")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,6 +50,8 @@ class SegmentData:
         voltages: applied ``[v_d, v_q]`` (V), shape (N, 2), held between samples.
         currents: measured ``[i_d, i_q]`` (A), shape (N, 2).
         w_m: measured mechanical speed (rad/s), shape (N,), or None.
+        at_rest: the segment starts from rest (zero currents and speed); when
+            False the forward model starts from the first sample instead.
     """
 
     name: str
@@ -35,10 +60,18 @@ class SegmentData:
     voltages: np.ndarray
     currents: np.ndarray
     w_m: np.ndarray | None = None
+    at_rest: bool = True
 
     @property
     def num_samples(self) -> int:
         return int(self.t.shape[0])
+
+    def initial_state(self) -> np.ndarray:
+        """``[i_d, i_q, w_m, theta_m]`` the forward model starts from (A, A, rad/s, rad)."""
+        if self.at_rest:
+            return np.zeros(4)
+        w0 = 0.0 if (self.locked or self.w_m is None) else float(self.w_m[0])
+        return np.array([self.currents[0, 0], self.currents[0, 1], w0, 0.0])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,12 +98,28 @@ class BenchData:
         """M, the samples over all segments."""
         return sum(s.num_samples for s in self.segments)
 
-    def experiment(self) -> Experiment:
-        """The applied voltages and rotor conditions, for the forward model."""
+    @property
+    def has_measured_speed(self) -> bool:
+        """Some free segment carries a measured speed ``w_m``."""
+        return any(s.w_m is not None and not s.locked for s in self.segments)
+
+    def experiment(self, measured_speed: bool = True) -> Experiment:
+        """The applied voltages and rotor conditions, for the forward model.
+
+        Args:
+            measured_speed: on free segments with a measured ``w_m``, use it as
+                an input of the electrical equations (J and B then play no
+                part); when False the speed is simulated from J and B.
+        """
+        speeds = [
+            s.w_m if (measured_speed and s.w_m is not None and not s.locked) else None for s in self.segments
+        ]
         return Experiment.from_segments(
             [s.voltages for s in self.segments],
             [s.locked for s in self.segments],
             1.0 / self.sample_rate,
+            initial_states=[s.initial_state() for s in self.segments],
+            speeds=speeds,
         )
 
     def with_currents(self, currents: np.ndarray) -> BenchData:
@@ -104,7 +153,257 @@ class BenchData:
                 "i_d": seg.currents[:, 0],
                 "i_q": seg.currents[:, 1],
             }
-            if seg.w_m is not None:
-                cols["w_m"] = seg.w_m
+            if any(s.w_m is not None for s in self.segments):
+                cols["w_m"] = seg.w_m if seg.w_m is not None else np.zeros(seg.num_samples)
             frames.append(pd.DataFrame(cols))
         return pd.concat(frames, ignore_index=True)
+
+    def save(self, path: str | Path) -> Path:
+        """Write the bench file (format from the suffix: .csv, .parquet, .mat), atomically."""
+        path = Path(path)
+        suffix = path.suffix.lower()
+        if suffix not in FORMATS:
+            raise DataError(f"{path}: unknown bench-file format '{suffix}'; use one of {', '.join(FORMATS)}.")
+        frame = self.to_frame()
+        with atomic_path(path) as tmp:
+            if suffix == ".csv":
+                frame.to_csv(tmp, index=False, float_format="%.17g")
+            elif suffix == ".parquet":
+                frame.to_parquet(tmp, index=False)
+            else:
+                from scipy.io import savemat
+
+                columns = {c: frame[c].to_numpy() for c in frame.columns if c != "segment"}
+                columns["segment"] = np.array(frame["segment"].tolist(), dtype=object)
+                savemat(tmp, columns, oned_as="column", appendmat=False)
+        return path
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def _read_frame(path: Path) -> pd.DataFrame:
+    suffix = path.suffix.lower()
+    if suffix not in FORMATS:
+        raise DataError(f"{path}: unknown bench-file format '{suffix}'; use one of {', '.join(FORMATS)}.")
+    if not path.is_file():
+        raise DataError(f"{path}: no such file; check the path.")
+    try:
+        if suffix == ".csv":
+            return pd.read_csv(path)
+        if suffix == ".parquet":
+            return pd.read_parquet(path)
+        return _read_mat(path)
+    except DataError:
+        raise
+    except Exception as exc:  # a parser's own error: say which file and what it said
+        raise DataError(f"{path}: cannot be read as a {suffix[1:]} bench file ({exc}).") from None
+
+
+def _read_mat(path: Path) -> pd.DataFrame:
+    from scipy.io import loadmat
+
+    raw = {k: v for k, v in loadmat(path, squeeze_me=True).items() if not k.startswith("__")}
+    lengths = {k: np.size(v) for k, v in raw.items()}
+    if len(set(lengths.values())) > 1:
+        longest = max(lengths.values())
+        short = sorted(k for k, n in lengths.items() if n != longest)
+        raise DataError(
+            f"{path}: column(s) {', '.join(short)} have {', '.join(str(lengths[k]) for k in short)} samples but the "
+            f"others {longest}: the columns were logged at different sample rates; resample them onto one time base."
+        )
+    columns = {}
+    for k, v in raw.items():
+        arr = np.atleast_1d(v)
+        columns[k] = [str(x).strip() for x in arr] if arr.dtype.kind in "OUS" else arr.astype(float)
+    return pd.DataFrame(columns)
+
+
+def _noise_level(x: np.ndarray) -> float:
+    """Robust sensor-noise estimate (A) from second differences (MAD), insensitive to slow signals."""
+    if x.size < 4:
+        return 0.0
+    d2 = np.diff(x, 2)
+    return float(np.median(np.abs(d2 - np.median(d2))) / 0.6745 / math.sqrt(6.0))
+
+
+def _clarke_park(frame: pd.DataFrame, prefix: str, theta_e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Amplitude-invariant Clarke then Park of phase quantities ``<prefix>_a/b(/c)``."""
+    a, b = frame[f"{prefix}_a"].to_numpy(float), frame[f"{prefix}_b"].to_numpy(float)
+    # Without the third phase, assume no zero-sequence component: c = -a - b.
+    c = frame[f"{prefix}_c"].to_numpy(float) if f"{prefix}_c" in frame else -a - b
+    alpha = (2.0 * a - b - c) / 3.0
+    beta = (b - c) / math.sqrt(3.0)
+    cos, sin = np.cos(theta_e), np.sin(theta_e)
+    return alpha * cos + beta * sin, -alpha * sin + beta * cos
+
+
+def _phase_to_dq(frame: pd.DataFrame, source: str, pole_pairs: float) -> pd.DataFrame:
+    """Replace phase columns by dq columns (amplitude-invariant transforms)."""
+    for name in ("i_b", "v_a", "v_b"):
+        if name not in frame:
+            raise DataError(f"{source}: phase data needs column '{name}' (with i_a, i_b, v_a, v_b, optional i_c, v_c).")
+    if "theta_e" in frame:
+        theta_e = frame["theta_e"].to_numpy(float)
+    elif "theta_m" in frame:
+        theta_e = pole_pairs * frame["theta_m"].to_numpy(float)
+    else:
+        raise DataError(
+            f"{source}: phase data needs a rotor angle column: 'theta_e' (electrical, rad) or "
+            "'theta_m' (mechanical, rad; multiplied by pole_pairs from the motor file)."
+        )
+    _check_finite(frame, source, [c for c in frame.columns if c[:2] in ("i_", "v_")] + ["theta_e", "theta_m"])
+    out = frame.copy()
+    out["i_d"], out["i_q"] = _clarke_park(frame, "i", theta_e)
+    out["v_d"], out["v_q"] = _clarke_park(frame, "v", theta_e)
+    return out
+
+
+def _check_finite(frame: pd.DataFrame, source: str, columns: list[str]) -> None:
+    for col in columns:
+        if col not in frame:
+            continue
+        values = pd.to_numeric(frame[col], errors="coerce").to_numpy(float)
+        bad = ~np.isfinite(values)
+        if not bad.any():
+            continue
+        rows = np.flatnonzero(~bad)
+        stride = np.diff(rows)
+        if rows.size >= 2 and stride.min() == stride.max() and stride[0] > 1:
+            raise DataError(
+                f"{source}: column '{col}' has a value only on every {stride[0]}th row: it was logged at a lower "
+                f"sample rate than 't'; resample '{col}' onto the time base of 't'."
+            )
+        row = int(np.flatnonzero(bad)[0])
+        raw = frame[col].iloc[row]
+        what = "a missing value" if pd.isna(raw) else f"'{raw}'"
+        raise DataError(
+            f"{source}: column '{col}' has {what} in data row {row + 1} ({int(bad.sum())} bad value(s) in all); "
+            "every value must be a finite number: remove or repair those rows."
+        )
+
+
+def bench_from_frame(
+    frame: pd.DataFrame,
+    source: str = "bench data",
+    *,
+    pole_pairs: float = 4.0,
+    nominal_R: float | None = None,
+) -> BenchData:
+    """Check a table of bench samples and split it into segments.
+
+    Args:
+        frame: one row per sample with the bench-file columns (dq or phase).
+        source: the file name used in messages.
+        pole_pairs: for a ``theta_m`` angle column (-).
+        nominal_R: nominal resistance (ohm) for the plausibility check of the
+            current magnitude (mA written as A); skipped when None.
+
+    Raises:
+        DataError: one sentence naming ``source``, the column and the fix.
+    """
+    if len(frame) == 0:
+        raise DataError(f"{source}: the file has no samples; record at least one segment.")
+    if "i_d" not in frame and "i_a" in frame:
+        frame = _phase_to_dq(frame, source, pole_pairs)
+    for col, meaning in DQ_COLUMNS.items():
+        if col not in frame:
+            hint = " (or phase columns i_a, i_b, v_a, v_b with theta_e)" if col in ("i_d", "i_q", "v_d", "v_q") else ""
+            raise DataError(f"{source}: missing column '{col}' ({meaning}){hint}; add it to the file.")
+    numeric = ["locked", "t", "v_d", "v_q", "i_d", "i_q"] + (["w_m"] if "w_m" in frame else [])
+    _check_finite(frame, source, numeric)
+    names = frame["segment"]
+    blank = names.isna() | (names.astype(str).str.strip() == "")
+    if blank.any():
+        raise DataError(
+            f"{source}: column 'segment' is empty in data row {int(np.flatnonzero(blank.to_numpy())[0]) + 1}; "
+            "name the segment of every row."
+        )
+    names = names.astype(str).str.strip().to_numpy()
+    # Segments in order of appearance; each must be one block of consecutive rows.
+    boundaries = np.flatnonzero(names[1:] != names[:-1]) + 1
+    starts = np.concatenate([[0], boundaries])
+    stops = np.concatenate([boundaries, [len(frame)]])
+    order = [names[i] for i in starts]
+    if len(set(order)) != len(order):
+        again = next(n for n in order if order.count(n) > 1)
+        raise DataError(
+            f"{source}: segment '{again}' appears in two separate blocks of rows; keep each segment's rows together "
+            "or give the blocks different names."
+        )
+
+    segments, rates = [], []
+    for name, lo, hi in zip(order, starts, stops):
+        rows = frame.iloc[lo:hi]
+        where = f"{source}: segment '{name}'"
+        if hi - lo < 2:
+            raise DataError(f"{where} has a single sample; a segment needs at least two samples (drop or extend it).")
+        t = rows["t"].to_numpy(float)
+        dt = np.diff(t)
+        if np.any(dt == 0):
+            k = int(np.flatnonzero(dt == 0)[0])
+            raise DataError(
+                f"{where}: column 't' repeats the timestamp {t[k]:.9g} s (data rows {lo + k + 1} and {lo + k + 2}); "
+                "remove the duplicated rows."
+            )
+        if np.any(dt < 0):
+            k = int(np.flatnonzero(dt < 0)[0])
+            raise DataError(
+                f"{where}: column 't' decreases from {t[k]:.9g} s to {t[k + 1]:.9g} s at data row {lo + k + 2}; "
+                "sort the rows by time within each segment."
+            )
+        period = float(np.median(dt))
+        if np.max(np.abs(dt - period)) > 1e-3 * period:
+            k = int(np.argmax(np.abs(dt - period)))
+            raise DataError(
+                f"{where}: column 't' is not uniformly sampled (step {dt[k]:.6g} s at data row {lo + k + 2}, "
+                f"typical {period:.6g} s); resample the segment onto a uniform time grid."
+            )
+        rates.append(1.0 / period)
+        locked_values = np.unique(rows["locked"].to_numpy(float))
+        if locked_values.size != 1 or locked_values[0] not in (0.0, 1.0):
+            raise DataError(
+                f"{where}: column 'locked' must be one value, 0 or 1, over the segment; got {locked_values.tolist()}."
+            )
+        locked = bool(locked_values[0])
+        currents = rows[["i_d", "i_q"]].to_numpy(float)
+        voltages = rows[["v_d", "v_q"]].to_numpy(float)
+        w_m = rows["w_m"].to_numpy(float) if "w_m" in frame else None
+        # A segment starts from rest unless its first sample says otherwise (beyond the noise).
+        noise = max(_noise_level(currents[:, 0]), _noise_level(currents[:, 1]), 1e-6)
+        at_rest = bool(np.all(np.abs(currents[0]) <= 5.0 * noise))
+        if w_m is not None and not locked:
+            at_rest = at_rest and abs(w_m[0]) <= max(5.0 * _noise_level(w_m), 1e-6)
+        segments.append(SegmentData(name, locked, t - t[0], voltages, currents, w_m, at_rest))
+
+    rate = rates[0]
+    for seg, r in zip(segments, rates):
+        if abs(r - rate) > 1e-6 * rate:
+            raise DataError(
+                f"{source}: segment '{seg.name}' is sampled at {r:.6g} Hz but '{segments[0].name}' at {rate:.6g} Hz; "
+                "record every segment at one sample rate (or resample)."
+            )
+    bench = BenchData(tuple(segments), sample_rate=rate, source=source)
+    if nominal_R is not None:
+        _check_current_magnitude(bench, nominal_R)
+    return bench
+
+
+def _check_current_magnitude(bench: BenchData, nominal_R: float) -> None:
+    """Refuse currents far above anything the applied voltages could drive (mA written as A)."""
+    v_max = max(float(np.max(np.abs(s.voltages))) for s in bench.segments)
+    i_max = max(float(np.max(np.abs(s.currents))) for s in bench.segments)
+    # |i| cannot settle above max|v|/R; a factor 10 leaves room for a 50 % wrong R and transients.
+    bound = 10.0 * v_max / nominal_R
+    if v_max > 0 and i_max > bound:
+        raise DataError(
+            f"{bench.source}: currents reach {i_max:.4g} A but voltages of at most {v_max:.3g} V across "
+            f"R = {nominal_R:.3g} ohm cannot drive more than ~{v_max / nominal_R:.3g} A: are 'i_d'/'i_q' in mA? "
+            "Give currents in A (divide by 1000)."
+        )
+
+
+def load_bench(path: str | Path, *, pole_pairs: float = 4.0, nominal_R: float | None = None) -> BenchData:
+    """Read and check a bench file (.csv, .parquet or .mat); see :func:`bench_from_frame`."""
+    path = Path(path)
+    return bench_from_frame(_read_frame(path), str(path), pole_pairs=pole_pairs, nominal_R=nominal_R)

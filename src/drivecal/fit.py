@@ -434,6 +434,7 @@ def fit(
     initial: MotorParams | np.ndarray | None = None,
     names: tuple[str, ...] = ESTIMATED,
     options: FitOptions = FitOptions(),
+    measured_speed: bool = True,
 ) -> Calibration:
     """Calibrate a motor from bench data.
 
@@ -446,7 +447,15 @@ def fit(
         initial: starting point (default: the prior).
         names: parameters to estimate.
         options: solver settings.
+        measured_speed: where free segments carry a measured ``w_m``, use it as
+            an input so J and B play no part (see ``BenchData.experiment``).
     """
     return fit_currents(
-        bench.experiment(), bench.currents, prior, initial=initial, names=names, options=options, source=bench.source
+        bench.experiment(measured_speed=measured_speed),
+        bench.currents,
+        prior,
+        initial=initial,
+        names=names,
+        options=options,
+        source=bench.source,
     )

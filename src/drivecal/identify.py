@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
+from .errors import DrivecalError
 from .forward import Experiment, predict_currents
 from .motor import ESTIMATED, MotorParams
 
@@ -122,8 +123,12 @@ def _jaxterity_report(jacobian: np.ndarray, names: tuple[str, ...]):
     return identifiability_from_jacobian(jacobian, names=names, cond_max=COND_MAX)
 
 
-def _why_dead(name: str, experiment: Experiment) -> str:
-    """A plain-language reason a parameter has no effect on the currents."""
+def structural_reason(name: str, experiment: Experiment) -> str | None:
+    """Why the plan's structure hides ``name`` from the currents, or None if it does not.
+
+    These are the reasons that hold for any motor: no free rotor for
+    lambda_m, no d-axis excitation for Ld, and so on.
+    """
     volts = np.asarray(experiment.voltages)
     locked = np.asarray(experiment.locked) > 0.5
     if name == "lambda_m" and locked.all():
@@ -132,9 +137,35 @@ def _why_dead(name: str, experiment: Experiment) -> str:
         return "no d-axis excitation (i_d never changes)"
     if name == "Lq" and not np.any(volts[:, 1]):
         return "no q-axis excitation (i_q never changes)"
-    if name == "R" and not np.any(volts):
+    if name == "R" and not np.any(volts) and not np.any(np.asarray(experiment.initial_state)[:, :2]):
         return "no voltage applied, so no current flows"
-    return "no effect on the measured currents in this plan"
+    return None
+
+
+def _why_dead(name: str, experiment: Experiment) -> str:
+    """A plain-language reason a parameter has no effect on the currents."""
+    return structural_reason(name, experiment) or "no effect on the measured currents in this plan"
+
+
+def check_requested(names: tuple[str, ...], experiment: Experiment, source: str) -> None:
+    """Refuse a run that cannot show a parameter the user asked for by name.
+
+    Raises:
+        DrivecalError: naming ``source``, the parameter, the reason and the fix.
+    """
+    for name in names:
+        reason = structural_reason(name, experiment)
+        if reason is not None:
+            fix = {
+                "lambda_m": "add a free spin-up segment (locked = false)",
+                "Ld": "add a segment with d-axis voltage",
+                "Lq": "add a segment with q-axis voltage",
+                "R": "apply a voltage",
+            }[name]
+            raise DrivecalError(
+                f"{source}: {name} is requested ('estimate' in the motor file) but the run has {reason}; "
+                f"{fix}, or drop {name} from 'estimate'."
+            )
 
 
 def _confounded(jac_scaled: np.ndarray, names: tuple[str, ...]) -> tuple[str, ...]:

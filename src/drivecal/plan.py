@@ -74,12 +74,15 @@ class Plan:
         sample_rate: current sampling (and voltage update) rate (Hz).
         v_dc: DC-link voltage (V); the inverter reaches ``|v_dq| <= v_dc / sqrt(3)``.
         current_limit: the bench's peak phase-current limit (A).
+        max_speed: highest mechanical speed the bench allows on free segments
+            (rad/s), or None for no stated limit.
     """
 
     segments: tuple[Segment, ...]
     sample_rate: float = 20_000.0
     v_dc: float = 48.0
     current_limit: float = 30.0
+    max_speed: float | None = None
 
     @property
     def sample_period(self) -> float:
