@@ -136,7 +136,8 @@ def _problems(plan: Plan, motor: MotorParams, segments: tuple[SegmentPrediction,
             continue
         if s.peak_current > plan.current_limit:
             problems.append(f"{where}: predicted peak current {s.peak_current:.3g} A at "
-                            f"t = {s.peak_current_time:.4g} s exceeds the current limit {plan.current_limit:.3g} A; lower the voltage or shorten it.")
+                            f"t = {s.peak_current_time:.4g} s exceeds the current limit {plan.current_limit:.3g} A; "
+                            "lower the voltage or shorten the segment.")
         if not s.locked:
             no_load = plan.voltage_limit / (float(motor.pole_pairs) * float(motor.lambda_m))
             if plan.max_speed is not None and s.peak_speed > plan.max_speed:
