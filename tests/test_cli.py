@@ -98,3 +98,46 @@ def test_help_is_there_for_every_command(capsys):
         assert main(args) == 0
     out = capsys.readouterr().out
     assert "--noise" in out and "[A]" in out
+
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def test_design_of_the_seed_poor_plan_names_the_dead_parameters(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["design", str(EXAMPLES / "seed_poor_plan.toml")])
+    captured = capsys.readouterr()
+    assert info.value.code == 2
+    assert "rank 2/4" in captured.out
+    assert "no: no d-axis excitation (i_d never changes)" in captured.out
+    assert "no: no free-rotor segment (back-EMF needs the rotor to turn)" in captured.out
+    assert captured.err.strip().endswith("cannot identify Ld, lambda_m; see the assessment above.")
+
+
+def test_design_json_of_the_default_plan(capsys):
+    assert main(["design", str(EXAMPLES / "default_plan.toml"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["feasible"] and doc["identifiable"] and doc["identifiability"]["rank"] == 4
+    assert [s["name"] for s in doc["segments"]] == ["locked d-step", "locked q-step", "free spin-up"]
+    assert all(0 < s["peak_current"] < doc["current_limit"] for s in doc["segments"])
+    # Predicted half-widths at 20 mA: relative CIs of a few hundredths of a percent.
+    assert all(0 < p["relative_ci95"] < 1e-3 for p in doc["predicted"].values())
+
+
+def test_design_flags_current_limit_and_runaway(tmp_path, capsys):
+    plan = tmp_path / "hot.toml"
+    plan.write_text('current_limit = "10 A"\nmax_speed = "20 rad/s"\n[[segment]]\nname = "spin"\n'
+                    'duration = "50 ms"\nlocked = false\nv_q = "12 V"\n')
+    with pytest.raises(SystemExit) as info:
+        main(["design", str(plan)])
+    captured = capsys.readouterr()
+    assert info.value.code == 2
+    assert "exceeds the current limit 10 A" in captured.out
+    assert "runs away" in captured.out and "above max_speed 20 rad/s" in captured.out
+    assert "feasibility problem(s)" in captured.err
+
+
+@pytest.mark.parametrize("command", ["simulate", "fit", "design"])
+def test_every_command_has_help(command, capsys):
+    assert main([command, "--help"]) == 0
+    assert "Usage: drivecal " + command in capsys.readouterr().out

@@ -190,7 +190,7 @@ def _location(loc: tuple) -> str:
             parts[-1] = f"{parts[-1]}[{item}]" if parts else f"[{item}]"
         elif item in ("step", "chirp", "multisine", "prbs", "samples", "float", "function-before[<lambda>(), float]"):
             continue  # pydantic's union branch names are not keys of the file
-        elif isinstance(item, str) and item.startswith("function-"):
+        elif isinstance(item, str) and (item.startswith("function-") or item.startswith("tagged-union[")):
             continue
         else:
             parts.append(str(item))
@@ -203,7 +203,8 @@ def _explain(error: ValidationError, path: str, kind: str, keys: str) -> Driveca
     # A value that was valid as one branch of a union shows failures of the others;
     # an unknown key or a unit message is what the user needs.
     def rank(e):
-        return {"extra_forbidden": 0, "value_error": 1, "missing": 2}.get(e["type"], 3)
+        # Among equals the deepest location is the most specific (a waveform table's key).
+        return {"extra_forbidden": 0, "value_error": 1, "missing": 2}.get(e["type"], 3), -len(e["loc"])
 
     e = min(errors, key=rank)
     where = _location(e["loc"])

@@ -158,6 +158,25 @@ class BenchData:
             frames.append(pd.DataFrame(cols))
         return pd.concat(frames, ignore_index=True)
 
+    def to_phase_frame(self, theta_e: np.ndarray) -> pd.DataFrame:
+        """The run as phase quantities: ``i_a, i_b, i_c, v_a, v_b, v_c`` (A, V, phase-to-neutral)
+        and ``theta_e`` (rad), by inverse amplitude-invariant Park and Clarke.
+
+        Args:
+            theta_e: electrical rotor angle at every sample (rad), shape (M,).
+        """
+        frame = self.to_frame()
+        theta_e = np.asarray(theta_e, dtype=float)
+        cos, sin = np.cos(theta_e), np.sin(theta_e)
+        for prefix in ("i", "v"):
+            d, q = frame.pop(f"{prefix}_d").to_numpy(), frame.pop(f"{prefix}_q").to_numpy()
+            alpha, beta = d * cos - q * sin, d * sin + q * cos
+            frame[f"{prefix}_a"] = alpha
+            frame[f"{prefix}_b"] = -0.5 * alpha + 0.5 * math.sqrt(3.0) * beta
+            frame[f"{prefix}_c"] = -0.5 * alpha - 0.5 * math.sqrt(3.0) * beta
+        frame["theta_e"] = theta_e
+        return frame
+
     def save(self, path: str | Path) -> Path:
         """Write the bench file (format from the suffix: .csv, .parquet, .mat), atomically."""
         path = Path(path)

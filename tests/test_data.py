@@ -1,0 +1,204 @@
+"""Bench files: formats, phase data, and every kind of bad input refused in one sentence."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import drivecal as dc
+from drivecal.cli import main
+
+FS = 20_000.0
+
+
+def small_frame(n: int = 60) -> pd.DataFrame:
+    """Two plausible segments (a locked d-step, a free q-step) without running the engine."""
+    t = np.arange(n) / FS
+    rise = 1.0 - np.exp(-t * 0.45 / 3.2e-3)
+    d = pd.DataFrame({"segment": "d", "locked": 1, "t": t, "v_d": 8.0, "v_q": 0.0,
+                      "i_d": 8.0 / 0.45 * rise, "i_q": 0.0})
+    q = pd.DataFrame({"segment": "spin", "locked": 0, "t": t, "v_d": 0.0, "v_q": 8.0,
+                      "i_d": 0.0, "i_q": 8.0 / 0.45 * rise})
+    return pd.concat([d, q], ignore_index=True)
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".parquet", ".mat"])
+def test_save_and_load_round_trip_exactly(tmp_path, suffix, clean_default):
+    bench = clean_default.add_noise(0.02, 5)
+    path = bench.save(tmp_path / f"bench{suffix}")
+    loaded = dc.load_bench(path)
+    assert loaded.sample_rate == pytest.approx(bench.sample_rate, rel=1e-9)
+    assert [s.name for s in loaded.segments] == [s.name for s in bench.segments]
+    assert [s.locked for s in loaded.segments] == [s.locked for s in bench.segments]
+    np.testing.assert_array_equal(loaded.currents, bench.currents)
+    for a, b in zip(loaded.segments, bench.segments):
+        np.testing.assert_array_equal(a.voltages, b.voltages)
+        assert a.at_rest
+    assert not list(tmp_path.glob(".*part"))  # no temporary file left
+
+
+def test_phase_data_converts_to_dq(clean_default):
+    """Phase quantities made by inverse Park/Clarke read back as the dq file."""
+    bench = clean_default.add_noise(0.02, 5)
+    theta_e = 4.0 * np.linspace(0.0, 7.0, bench.num_samples)
+    phases = bench.to_phase_frame(theta_e)
+    np.testing.assert_allclose(phases[["i_a", "i_b", "i_c"]].sum(axis=1), 0.0, atol=1e-12)
+    by_theta_m = phases.drop(columns=["theta_e"]).assign(theta_m=theta_e / 4.0)
+    for frame in (phases, phases.drop(columns=["i_c", "v_c"]), by_theta_m):
+        converted = dc.bench_from_frame(frame, "abc", pole_pairs=4.0)
+        np.testing.assert_allclose(converted.currents, bench.currents, atol=1e-12)
+        for a, b in zip(converted.segments, bench.segments):
+            np.testing.assert_allclose(a.voltages, b.voltages, atol=1e-12)
+
+
+def test_segment_not_at_rest_starts_from_its_first_sample():
+    frame = small_frame()
+    late = frame[frame["segment"] == "d"].iloc[10:]
+    bench = dc.bench_from_frame(late, "late.csv")
+    seg = bench.segments[0]
+    assert not seg.at_rest
+    np.testing.assert_allclose(seg.initial_state()[:2], late[["i_d", "i_q"]].to_numpy()[0])
+    assert dc.bench_from_frame(frame, "ok.csv").segments[0].at_rest
+
+
+def run_cli(args, capsys):
+    with pytest.raises(SystemExit) as info:
+        main([str(a) for a in args])
+    err = capsys.readouterr().err
+    return info.value.code, err
+
+
+def assert_one_sentence(code, err, *needles):
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("drivecal: error: ")
+    assert "Traceback" not in err
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+
+
+def _bad_frames():
+    f = small_frame()
+    cases = {}
+    cases["missing column"] = (f.drop(columns=["i_q"]), ["missing column 'i_q'"])
+    x = f.copy()
+    x.loc[7, "i_d"] = np.nan
+    cases["NaN"] = (x, ["column 'i_d'", "missing value in data row 8"])
+    x = f.copy()
+    x.loc[9, "v_q"] = np.inf
+    cases["Inf"] = (x, ["column 'v_q'", "data row 10", "finite"])
+    x = f.copy()
+    x.loc[3, "segment"] = ""
+    cases["empty segment name"] = (x, ["column 'segment' is empty in data row 4"])
+    cases["no samples"] = (f.iloc[:0], ["has no samples"])
+    x = pd.concat([f, f.iloc[[0]].assign(segment="lonely")], ignore_index=True)
+    cases["single sample"] = (x, ["segment 'lonely' has a single sample"])
+    x = f.copy()
+    x.loc[20, "t"] += 0.3 / FS
+    cases["non-uniform time"] = (x, ["segment 'd'", "not uniformly sampled", "resample"])
+    x = f.copy()
+    x.loc[[20, 21], "t"] = x.loc[[21, 20], "t"].to_numpy()
+    cases["decreasing time"] = (x, ["segment 'd'", "column 't' decreases", "sort the rows"])
+    x = f.copy()
+    x.loc[21, "t"] = x.loc[20, "t"]
+    cases["duplicated timestamps"] = (x, ["column 't' repeats the timestamp", "remove the duplicated rows"])
+    x = f.copy()
+    x["w_m"] = np.where(np.arange(len(x)) % 10 == 0, 1.0, np.nan)
+    cases["mixed rates in a CSV"] = (x, ["column 'w_m' has a value only on every 10th row", "resample"])
+    x = f.copy()
+    x[["i_d", "i_q"]] *= 1000.0
+    cases["currents in mA"] = (x, ["are 'i_d'/'i_q' in mA?", "divide by 1000"])
+    x = f.copy()
+    x.loc[x["segment"] == "spin", "t"] *= 2.0
+    cases["mixed sample rates across segments"] = (x, ["sampled at 10000 Hz but 'd' at 20000 Hz"])
+    return cases
+
+
+CASES = _bad_frames()
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_bad_bench_file_is_refused_in_one_sentence(case, tmp_path, capsys):
+    frame, needles = CASES[case]
+    path = tmp_path / "bench.csv"
+    frame.to_csv(path, index=False)
+    out = tmp_path / "results"
+    code, err = run_cli(["fit", path, "--out", out], capsys)
+    assert_one_sentence(code, err, str(path), *needles)
+    assert not out.exists()  # nothing written
+
+
+def test_mat_file_with_columns_of_different_lengths(tmp_path, capsys):
+    from scipy.io import savemat
+
+    f = small_frame()
+    columns = {c: f[c].to_numpy() for c in f.columns if c != "segment"}
+    columns["segment"] = np.array(f["segment"].tolist(), dtype=object)
+    columns["w_m"] = np.zeros(len(f) // 10)
+    path = tmp_path / "bench.mat"
+    savemat(path, columns, oned_as="column")
+    code, err = run_cli(["fit", path], capsys)
+    assert_one_sentence(code, err, str(path), "w_m", "different sample rates")
+
+
+def test_unreadable_and_unknown_files(tmp_path, capsys):
+    code, err = run_cli(["fit", tmp_path / "nope.csv"], capsys)
+    assert_one_sentence(code, err, "nope.csv: no such file")
+    (tmp_path / "b.xlsx").write_text("x")
+    code, err = run_cli(["fit", tmp_path / "b.xlsx"], capsys)
+    assert_one_sentence(code, err, "unknown bench-file format '.xlsx'")
+
+
+PLAN_OK = """
+sample_rate = "20 kHz"
+[[segment]]
+name = "d"
+duration = "5 ms"
+locked = true
+v_d = "8 V"
+"""
+
+
+@pytest.mark.parametrize(
+    "text, needles",
+    [
+        (PLAN_OK.replace('v_d = "8 V"', 'v_d = "40 V"'), ["segment 'd'", "outside the voltage circle"]),
+        ("colour = 3\n" + PLAN_OK, ["unknown key 'colour'"]),
+        (PLAN_OK + "colour = 3\n", ["unknown key 'segment[0].colour'"]),
+        (PLAN_OK.replace('"5 ms"', '"5 mV"'), ["'segment[0].duration'", "'5 mV' has unit 'mV' but a time in s"]),
+    ],
+)
+def test_bad_plan_file_via_cli(text, needles, tmp_path, capsys):
+    plan = tmp_path / "plan.toml"
+    plan.write_text(text)
+    out = tmp_path / "bench.csv"
+    for args in (["simulate", plan, "--out", out], ["design", plan]):
+        code, err = run_cli(args, capsys)
+        assert_one_sentence(code, err, str(plan), *needles)
+        assert not out.exists() and not list(tmp_path.glob(".bench*"))
+
+
+def test_lambda_m_requested_without_free_segment(tmp_path, capsys):
+    plan = tmp_path / "plan.toml"
+    plan.write_text(PLAN_OK)
+    motor = tmp_path / "motor.toml"
+    motor.write_text('estimate = ["R", "Ld", "lambda_m"]\n')
+    code, err = run_cli(["design", plan, "--motor", motor], capsys)
+    assert_one_sentence(code, err, str(plan), "lambda_m is requested", "no free-rotor segment",
+                        "add a free spin-up segment")
+    bench = tmp_path / "bench.csv"
+    small_frame().query("segment == 'd'").to_csv(bench, index=False)
+    code, err = run_cli(["fit", bench, "--motor", motor], capsys)
+    assert_one_sentence(code, err, str(bench), "lambda_m is requested", "no free-rotor segment")
+
+
+def test_bad_motor_file_via_cli(tmp_path, capsys):
+    motor = tmp_path / "motor.toml"
+    motor.write_text('R = "0.45 ohm"\nLd = "3.2 mA"\n')
+    code, err = run_cli(["design", Path(__file__).resolve().parents[1] / "examples" / "default_plan.toml",
+                         "--motor", motor], capsys)
+    assert_one_sentence(code, err, str(motor), "'Ld'", "inductance")
