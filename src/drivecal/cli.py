@@ -11,6 +11,7 @@ import sys
 
 import click
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 import drivecal
@@ -56,7 +57,7 @@ def _design_table(run: drivecal.DesignRun, truth: drivecal.MotorParams) -> Table
                         f"sigma_hat {float(cal.sigma_hat) * 1e3:.2f} mA", title_justify="left")
     for col in ("parameter", "unit", "true", "initial", "estimate", "error [%]", "error [SE]", "95 % CI"):
         # one row per parameter: never wrap a number
-        table.add_column(col, justify="left" if col in ("parameter", "unit", "95 % CI") else "right", no_wrap=True)
+        table.add_column(escape(col), justify="left" if col in ("parameter", "unit", "95 % CI") else "right", no_wrap=True)
     for i, n in enumerate(cal.names):
         e = errors[n]
         if cal.identifiable[i]:
@@ -180,7 +181,7 @@ def _fit_table(cal: drivecal.Calibration) -> Table:
     table = Table(title=f"{cal.source}: {cal.message}, {int(cal.iterations)} LM steps, "
                         f"sigma_hat {float(cal.sigma_hat) * 1e3:.3f} mA", title_justify="left")
     for col in ("parameter", "unit", "prior", "estimate", "std err", "95 % CI", "rel. CI [%]"):
-        table.add_column(col, justify="left" if col in ("parameter", "unit", "95 % CI") else "right", no_wrap=True)
+        table.add_column(escape(col), justify="left" if col in ("parameter", "unit", "95 % CI") else "right", no_wrap=True)
     for i, n in enumerate(cal.names):
         prior = _fmt(float(getattr(cal.prior, n)))
         if cal.identifiable[i]:
@@ -306,7 +307,7 @@ def _print_design(report, plan_path, console: Console) -> None:
                   f"{plan.current_limit:g} A")
     seg_table = Table(title="feasibility on the nominal motor", title_justify="left")
     for col in ("segment", "rotor", "peak |i_dq| [A]", "at t [s]", "peak w_m [rad/s]"):
-        seg_table.add_column(col, justify="left" if col in ("segment", "rotor") else "right", no_wrap=True)
+        seg_table.add_column(escape(col), justify="left" if col in ("segment", "rotor") else "right", no_wrap=True)
     for s in report.segments:
         seg_table.add_row(s.name, "locked" if s.locked else "free", f"{s.peak_current:.3g}",
                           f"{s.peak_current_time:.4g}", "-" if s.locked else f"{s.peak_speed:.4g}")
@@ -318,7 +319,7 @@ def _print_design(report, plan_path, console: Console) -> None:
                   f"{ident.condition_number:.3g} -> {verdict}")
     table = Table(title=f"predicted 95 % intervals at noise {ident.noise_sigma * 1e3:g} mA", title_justify="left")
     for col in ("parameter", "unit", "nominal", "± 95 % CI", "rel. [%]", "identifiable"):
-        table.add_column(col, justify="left" if col in ("parameter", "unit", "identifiable") else "right", no_wrap=True)
+        table.add_column(escape(col), justify="left" if col in ("parameter", "unit", "identifiable") else "right", no_wrap=True)
     for i, n in enumerate(ident.names):
         nominal = float(getattr(report.motor, n))
         half = ident.predicted_ci95[i]
