@@ -8,7 +8,17 @@ drivecal switches JAX to double precision.
 import os as _os
 from pathlib import Path as _Path
 
-import jax as _jax
+
+def _cache_enabled() -> bool:
+    return _os.environ.get("DRIVECAL_JAX_CACHE", "1").strip().lower() not in ("0", "off", "false", "no")
+
+
+if _cache_enabled():
+    # XLA:CPU logs a harmless machine-feature line at ERROR level on every
+    # cache hit; keep C++ logging to fatal errors unless the user chose a level.
+    _os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+
+import jax as _jax  # noqa: E402
 
 _jax.config.update("jax_enable_x64", True)
 
@@ -16,11 +26,11 @@ _jax.config.update("jax_enable_x64", True)
 def _enable_compilation_cache() -> None:
     """Keep compiled kernels on disk so a second drivecal process does not recompile.
 
-    Opt-in with ``DRIVECAL_JAX_CACHE=1``: kernels go to ``$XDG_CACHE_HOME/drivecal/jax``
-    (``~/.cache/...``), or to ``DRIVECAL_JAX_CACHE_DIR``. Off by default because
-    XLA:CPU logs a loud (harmless) machine-feature warning on every cache hit.
+    On by default; ``DRIVECAL_JAX_CACHE=0`` turns it off. Kernels go to
+    ``$XDG_CACHE_HOME/drivecal/jax`` (``~/.cache/drivecal/jax``), or to
+    ``DRIVECAL_JAX_CACHE_DIR``.
     """
-    if _os.environ.get("DRIVECAL_JAX_CACHE", "0").strip().lower() not in ("1", "on", "true", "yes"):
+    if not _cache_enabled():
         return
     base = _os.environ.get("XDG_CACHE_HOME") or str(_Path.home() / ".cache")
     path = _os.environ.get("DRIVECAL_JAX_CACHE_DIR") or str(_Path(base) / "drivecal" / "jax")
@@ -42,7 +52,7 @@ from .motor import DEFAULT_MOTOR, ESTIMATED, FIXED, UNITS, MotorParams, dq_deriv
 from .plan import Plan, Segment, default_plan, locked_q_step_plan  # noqa: E402
 from .config import MotorFile, load_motor, load_plan, motor_from_dict, plan_from_dict  # noqa: E402
 from .design import DesignReport, assess_design  # noqa: E402
-from . import waveforms  # noqa: E402
+from . import fleet, waveforms  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -90,5 +100,6 @@ __all__ = [
     "motor_from_dict",
     "plan_from_dict",
     "waveforms",
+    "fleet",
     "__version__",
 ]

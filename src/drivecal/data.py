@@ -201,7 +201,8 @@ class BenchData:
 # --------------------------------------------------------------------------- reading
 
 
-def _read_frame(path: Path) -> pd.DataFrame:
+def read_table(path: Path) -> pd.DataFrame:
+    """The raw table of a bench file (.csv, .parquet, .mat), unchecked."""
     suffix = path.suffix.lower()
     if suffix not in FORMATS:
         raise DataError(f"{path}: unknown bench-file format '{suffix}'; use one of {', '.join(FORMATS)}.")
@@ -425,4 +426,4 @@ def _check_current_magnitude(bench: BenchData, nominal_R: float) -> None:
 def load_bench(path: str | Path, *, pole_pairs: float = 4.0, nominal_R: float | None = None) -> BenchData:
     """Read and check a bench file (.csv, .parquet or .mat); see :func:`bench_from_frame`."""
     path = Path(path)
-    return bench_from_frame(_read_frame(path), str(path), pole_pairs=pole_pairs, nominal_R=nominal_R)
+    return bench_from_frame(read_table(path), str(path), pole_pairs=pole_pairs, nominal_R=nominal_R)

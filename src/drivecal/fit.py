@@ -143,11 +143,15 @@ def _record_iterates(**values):
 def _solve_batch(currents, z0, prior, experiment, names, options, record=False) -> _Solved:
     """Fit a batch: currents (B, M, 2) A, z0 (B, n). One compiled call.
 
-    With ``record`` the accepted iterates are appended to ``_ITERATES`` (for
-    convergence plots of single fits; it costs a host callback per step).
+    The experiment is shared (arrays of M samples) or one per dataset (a
+    leading B axis on every array, e.g. a fleet whose benches each measured
+    their own voltages and speed). With ``record`` the accepted iterates are
+    appended to ``_ITERATES`` (for convergence plots of single fits; it costs
+    a host callback per step).
     """
     verbose = _record_iterates if record else False
-    return jax.vmap(_solve_one, in_axes=(0, 0, None, None, None, None, None))(
+    experiment_axis = 0 if experiment.voltages.ndim == 3 else None  # static: shapes are known at trace time
+    return jax.vmap(_solve_one, in_axes=(0, 0, None, experiment_axis, None, None, None))(
         currents, z0, prior, experiment, names, options, verbose
     )
 
@@ -347,7 +351,9 @@ def fit_currents(
     """Fit measured currents of a known experiment; batched if ``currents`` is.
 
     Args:
-        experiment: the applied voltages and rotor conditions (M samples).
+        experiment: the applied voltages and rotor conditions (M samples),
+            shared by all datasets or, with a leading axis B on every array,
+            one per dataset (then ``currents`` must be batched).
         currents: measured ``[i_d, i_q]`` (A), shape (M, 2) or (B, M, 2).
         prior: nominal motor: scale of the search, value of anything not
             identifiable, and the fixed parameters.
@@ -371,7 +377,13 @@ def fit_currents(
         )
     if not np.all(np.isfinite(currents)):
         raise DrivecalError(f"{source}: currents contain NaN or Inf; remove or repair those samples.")
-    ident = identifiability or assess_identifiability(experiment, prior, names=names)
+    per_dataset = experiment.voltages.ndim == 3
+    if per_dataset and (not batched or experiment.voltages.shape[0] != currents.shape[0]):
+        raise DrivecalError(f"{source}: a batch of {experiment.voltages.shape[0]} experiments needs currents of "
+                            f"shape ({experiment.voltages.shape[0]}, M, 2), got {currents.shape}.")
+    # A batch of experiments shares one plan shape; judge it on the first (the structure is common).
+    first = jax.tree_util.tree_map(lambda a: a[0], experiment) if per_dataset else experiment
+    ident = identifiability or assess_identifiability(first, prior, names=names)
     fit_names = ident.fit_names
     if not fit_names:
         raise DrivecalError(

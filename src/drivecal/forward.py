@@ -179,3 +179,12 @@ def simulate_states(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
 def predict_currents(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
     """Predicted ``[i_d, i_q]`` (A) at every sample instant, shape (M, 2)."""
     return simulate_states(motor, experiment)[:, :2]
+
+
+def stack_experiments(experiments: list[Experiment]) -> Experiment:
+    """One experiment per dataset along a new leading axis (all of the same plan shape).
+
+    The result feeds ``fit_currents`` with a batch of currents, fitting benches
+    that each applied their own voltages (or measured their own speed) in one call.
+    """
+    return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *experiments)

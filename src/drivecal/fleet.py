@@ -1,0 +1,578 @@
+"""Fleet calibration: every motor off the line, one results table.
+
+One bench file per motor. Files are read and checked, grouped by plan shape
+(segment lengths, rotor conditions, speed input) and fitted together: one
+``jit(vmap(...))`` call per group and chunk, each motor with its own applied
+voltages and measured speed. Batch sizes are rounded up to powers of two
+(padding repeats a real motor and is dropped), so a process compiles each
+shape a handful of times at most and reuses it for the rest of the run.
+
+Nothing is lost: every input file yields exactly one row, a file that fails
+validation or a fit that does not converge included, with its reason. Rows are
+written per chunk to ``<out>.parts/`` (each part atomically), so a killed run
+resumes where it stopped; the final table is assembled, checked against the
+fleet (robust z-scores) and written atomically.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import glob
+import hashlib
+import math
+import os
+import shutil
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from .config import MotorFile
+from .data import FORMATS, BenchData, bench_from_frame, read_table
+from .errors import DrivecalError
+from .fit import fit_currents
+from .forward import Experiment, predict_currents, stack_experiments
+from .identify import check_requested
+from .motor import ESTIMATED, MotorParams
+from .report import atomic_path
+
+#: Robust z-score beyond which a parameter marks a motor as an outlier.
+DEFAULT_OUTLIER_Z = 5.0
+#: Residual diagnostics: a segment RMS this many times sigma_hat, or a lag-1
+#: residual autocorrelation this many standard errors from zero, flags a mismatch.
+MISMATCH_RMS_RATIO = 1.5
+MISMATCH_LAG1_Z = 5.0
+
+STATUS_CALIBRATED = "calibrated"
+STATUS_PARTIAL = "partially calibrated"
+STATUS_NOT_CONVERGED = "not converged"
+STATUS_INVALID = "invalid file"
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+def discover(inputs: Sequence[str | os.PathLike]) -> list[Path]:
+    """Bench files named by ``inputs``: files, directories (searched recursively) or glob patterns.
+
+    Returns the files sorted by path, each once.
+
+    Raises:
+        DrivecalError: an input that matches nothing.
+    """
+    found: set[Path] = set()
+    for item in inputs:
+        path = Path(item)
+        if path.is_dir():
+            matches = [p for p in path.rglob("*") if p.suffix.lower() in FORMATS and p.is_file()]
+        elif path.is_file():
+            matches = [path]
+        else:
+            matches = [Path(p) for p in glob.glob(str(item), recursive=True) if Path(p).is_file()]
+        if not matches:
+            raise DrivecalError(f"{item}: no bench files (.csv, .parquet, .mat) found there; check the path or pattern.")
+        found.update(p.resolve() for p in matches)
+    return sorted(found)
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 of the file's bytes (hex)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+@dataclasses.dataclass(frozen=True)
+class _Loaded:
+    path: str
+    serial: str
+    sha256: str
+    bench: BenchData | None
+    reason: str | None
+
+
+def _load(path: str, motor_file: MotorFile) -> _Loaded:
+    sha = ""
+    serial = Path(path).stem
+    try:
+        sha = file_sha256(path)
+        frame = read_table(Path(path))
+        if "serial" in frame and len(frame):
+            serial = str(frame["serial"].iloc[0])
+        prior = motor_file.motor
+        bench = bench_from_frame(frame, path, pole_pairs=float(prior.pole_pairs), nominal_R=float(prior.R))
+        return _Loaded(path, serial, sha, bench, None)
+    except (DrivecalError, OSError) as exc:
+        return _Loaded(path, serial, sha, None, str(exc))
+
+
+def _shape_key(bench: BenchData, measured_speed: bool) -> tuple:
+    return (
+        round(bench.sample_rate, 6),
+        tuple(
+            (s.num_samples, s.locked, bool(measured_speed and s.w_m is not None and not s.locked))
+            for s in bench.segments
+        ),
+    )
+
+
+def _bucket(n: int, chunk: int) -> int:
+    """Batch size to compile for n motors: the next power of two, at most ``chunk``."""
+    return min(chunk, 1 << max(0, math.ceil(math.log2(max(n, 1)))))
+
+
+# --------------------------------------------------------------------------- diagnostics
+
+
+@functools.partial(jax.jit, static_argnames=("names",))
+def _residuals(theta: jnp.ndarray, prior: MotorParams, experiments: Experiment, currents: jnp.ndarray, names):
+    """Residuals (A) of each motor at its estimate, shape (B, M, 2)."""
+
+    def one(th, experiment):
+        return predict_currents(prior.with_vector(names, th), experiment)
+
+    return jax.vmap(one)(theta, experiments) - currents
+
+
+def residual_diagnostics(residuals: np.ndarray, segment_start: np.ndarray, sigma_hat: np.ndarray) -> dict:
+    """Per-motor model-mismatch statistics from residuals (B, M, 2) A.
+
+    Returns ``resid_segment_ratio`` (largest per-segment residual RMS over
+    sigma_hat), ``resid_lag1`` (lag-1 autocorrelation of the residuals within
+    segments, both axes pooled) and ``mismatch`` (either beyond its limit:
+    white noise gives a ratio near 1 and a lag-1 correlation within a few
+    ``1/sqrt(pairs)``).
+    """
+    r = np.asarray(residuals)
+    starts = np.asarray(segment_start, dtype=bool)
+    if starts.ndim == 2:
+        starts = starts[0]
+    seg_id = np.cumsum(starts) - 1
+    num_segments = int(seg_id.max()) + 1
+    rms = np.stack(
+        [np.sqrt(np.mean(r[:, seg_id == s, :] ** 2, axis=(1, 2))) for s in range(num_segments)], axis=1
+    )
+    ratio = rms.max(axis=1) / np.asarray(sigma_hat)
+    pairs = ~starts[1:]  # consecutive samples of the same segment
+    a, b = r[:, :-1, :][:, pairs, :], r[:, 1:, :][:, pairs, :]
+    a = a - a.mean(axis=1, keepdims=True)
+    b = b - b.mean(axis=1, keepdims=True)
+    lag1 = np.sum(a * b, axis=(1, 2)) / np.sqrt(np.sum(a * a, axis=(1, 2)) * np.sum(b * b, axis=(1, 2)))
+    z = np.abs(lag1) * math.sqrt(2 * int(pairs.sum()))
+    return {
+        "resid_segment_ratio": ratio,
+        "resid_lag1": lag1,
+        "mismatch": (ratio > MISMATCH_RMS_RATIO) | (z > MISMATCH_LAG1_Z),
+    }
+
+
+# --------------------------------------------------------------------------- one chunk
+
+
+def _failed_row(item: _Loaded, status: str, reason: str) -> dict[str, Any]:
+    return {"serial": item.serial, "file": item.path, "file_sha256": item.sha256, "status": status,
+            "reason": reason, "converged": False}
+
+
+def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool, chunk: int) -> list[dict]:
+    prior, names = motor_file.motor, motor_file.names
+    experiments = [it.bench.experiment(measured_speed=measured_speed) for it in items]
+    size = _bucket(len(items), chunk)
+    pad = [0] * (size - len(items))  # padding repeats the first motor; its rows are dropped
+    index = list(range(len(items))) + pad
+    experiment = stack_experiments([experiments[i] for i in index])
+    currents = np.stack([items[i].bench.currents for i in index])
+    cal = fit_currents(experiment, currents, prior, names=names, source=f"{len(items)} motors")
+    fit_idx = [names.index(n) for n in cal.fit_names]
+    theta = np.asarray(cal.estimate)[:, fit_idx]
+    res = np.asarray(_residuals(jnp.asarray(theta), prior, experiment, jnp.asarray(currents), cal.fit_names))
+    diag = residual_diagnostics(res, np.asarray(experiment.segment_start), cal.sigma_hat)
+    partial = not all(cal.identifiable)
+    rows = []
+    for k, it in enumerate(items):
+        one = cal[k]
+        if not one.converged:
+            status, reason = STATUS_NOT_CONVERGED, one.message
+        elif partial:
+            dead = [n for n, ok in zip(one.names, one.identifiable) if not ok]
+            status = STATUS_PARTIAL
+            reason = "; ".join(f"{n}: {one.identifiability.reasons.get(n, 'not identifiable')}" for n in dead)
+        else:
+            status, reason = STATUS_CALIBRATED, ""
+        row = {
+            "serial": it.serial, "file": it.path, "file_sha256": it.sha256, "status": status, "reason": reason,
+            "converged": bool(one.converged), "message": one.message, "iterations": int(one.iterations),
+            "sigma_hat": float(one.sigma_hat), "num_samples": it.bench.num_samples,
+            "sample_rate": float(it.bench.sample_rate),
+            "measured_speed": bool(measured_speed and it.bench.has_measured_speed),
+        }
+        for i, n in enumerate(one.names):
+            row[n] = float(one.estimate[i])
+            row[f"{n}_se"] = float(one.se[i])
+            row[f"{n}_ci_low"] = float(one.ci95[i, 0])
+            row[f"{n}_ci_high"] = float(one.ci95[i, 1])
+            row[f"{n}_identifiable"] = bool(one.identifiable[i])
+        row["resid_segment_ratio"] = float(diag["resid_segment_ratio"][k])
+        row["resid_lag1"] = float(diag["resid_lag1"][k])
+        row["mismatch"] = bool(diag["mismatch"][k])
+        rows.append(row)
+    return rows
+
+
+def calibrate_files(
+    paths: Sequence[str],
+    motor_file: MotorFile,
+    *,
+    chunk: int = 256,
+    measured_speed: bool = True,
+) -> pd.DataFrame:
+    """Calibrate one chunk of bench files; one row per file, failures included.
+
+    Runs wherever it is called: in this process, or on a dask worker (the
+    compiled fit stays in that worker's memory for its next chunk).
+    """
+    from . import __version__
+
+    loaded = [_load(str(p), motor_file) for p in paths]
+    rows: dict[str, dict] = {}
+    groups: dict[tuple, list[_Loaded]] = {}
+    for item in loaded:
+        if item.bench is None:
+            rows[item.path] = _failed_row(item, STATUS_INVALID, item.reason or "unreadable")
+            continue
+        if motor_file.estimate is not None:
+            try:
+                check_requested(motor_file.names, item.bench.experiment(measured_speed), item.path)
+            except DrivecalError as exc:
+                rows[item.path] = _failed_row(item, STATUS_INVALID, str(exc))
+                continue
+        groups.setdefault(_shape_key(item.bench, measured_speed), []).append(item)
+    for items in groups.values():
+        for start in range(0, len(items), chunk):
+            part = items[start : start + chunk]
+            try:
+                for row in _fit_group(part, motor_file, measured_speed, chunk):
+                    rows[row["file"]] = row
+            except DrivecalError as exc:
+                for it in part:
+                    rows[it.path] = _failed_row(it, STATUS_INVALID, str(exc))
+    table = pd.DataFrame([rows[item.path] for item in loaded])
+    table["drivecal_version"] = __version__
+    return table
+
+
+# --------------------------------------------------------------------------- fleet checks
+
+
+def fleet_checks(table: pd.DataFrame, threshold: float = DEFAULT_OUTLIER_Z) -> pd.DataFrame:
+    """Add robust z-scores ``z_<name>`` against the batch and the ``outlier`` flags.
+
+    The centre is the median and the scale 1.4826·MAD of the calibrated
+    motors, so a few bad units cannot hide themselves by inflating the spread.
+    ``outlier_params`` lists the parameters beyond ``threshold`` (e.g. a
+    demagnetised rotor: ``lambda_m``; a shorted turn: ``R, Ld, Lq``).
+    """
+    out = table.copy()
+    good = out["status"].isin([STATUS_CALIBRATED, STATUS_PARTIAL]) if "status" in out else pd.Series(False)
+    flagged = pd.Series([[] for _ in range(len(out))], index=out.index, dtype=object)
+    for name in ESTIMATED:
+        if name not in out:
+            continue
+        usable = good & out.get(f"{name}_identifiable", pd.Series(False, index=out.index)).fillna(False).astype(bool)
+        values = out.loc[usable, name].astype(float)
+        z = pd.Series(np.nan, index=out.index)
+        if len(values) >= 3:
+            centre = float(values.median())
+            scale = 1.4826 * float((values - centre).abs().median())
+            scale = scale if scale > 0 else max(abs(centre) * 1e-12, 1e-300)
+            z[usable] = (values - centre) / scale
+        out[f"z_{name}"] = z
+        for idx in z.index[z.abs() > threshold]:
+            flagged[idx] = flagged[idx] + [name]
+    out["outlier"] = flagged.map(bool)
+    out["outlier_params"] = flagged.map(", ".join)
+    return out
+
+
+# --------------------------------------------------------------------------- the run
+
+
+@dataclasses.dataclass(frozen=True)
+class BatchSummary:
+    """How a batch run ended.
+
+    Attributes:
+        out: the results table path.
+        total: motors in the table.
+        done_before: motors skipped because an earlier run (``--resume``) had them.
+        calibrated, partial, failed: counts by status (failed = invalid or not converged).
+        outliers: serials flagged by the fleet check.
+        mismatch: serials whose residuals suggest model mismatch.
+        seconds: wall time of this run (s).
+    """
+
+    out: Path
+    total: int
+    done_before: int
+    calibrated: int
+    partial: int
+    failed: int
+    outliers: tuple[str, ...]
+    mismatch: tuple[str, ...]
+    seconds: float
+
+    @property
+    def completed_with_failures(self) -> bool:
+        return self.failed > 0
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["out"] = str(self.out)
+        d["outliers"], d["mismatch"] = list(self.outliers), list(self.mismatch)
+        d["status"] = "completed with failures" if self.completed_with_failures else "completed"
+        return d
+
+
+def parts_dir(out: Path) -> Path:
+    """Where a run keeps its per-chunk results until the table is assembled."""
+    return out.with_name(out.name + ".parts")
+
+
+def _read_done(out: Path) -> pd.DataFrame:
+    tables = []
+    if out.exists():
+        tables.append(pd.read_parquet(out))
+    parts = parts_dir(out)
+    if parts.is_dir():
+        tables += [pd.read_parquet(p) for p in sorted(parts.glob("part-*.parquet"))]
+    if not tables:
+        return pd.DataFrame()
+    done = pd.concat(tables, ignore_index=True)
+    fleet_columns = [c for c in done.columns if c.startswith("z_") or c in ("outlier", "outlier_params")]
+    return done.drop(columns=fleet_columns).drop_duplicates("file", keep="last")
+
+
+def run_batch(
+    inputs: Sequence[str | os.PathLike],
+    out: str | os.PathLike,
+    motor_file: MotorFile,
+    *,
+    chunk: int = 256,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    resume: bool = False,
+    measured_speed: bool = True,
+    outlier_z: float = DEFAULT_OUTLIER_Z,
+    progress: Callable[[int, int], None] = lambda done, total: None,
+) -> BatchSummary:
+    """Calibrate every bench file of ``inputs`` into the Parquet table ``out``.
+
+    Args:
+        inputs: files, directories or glob patterns.
+        out: results table (.parquet).
+        motor_file: nominal motor (prior) and the parameters to estimate.
+        chunk: motors per compiled call and per saved part.
+        workers: local worker processes (dask LocalCluster); default: the
+            machine's cores when there is more than one chunk, else in-process.
+        scheduler: address of a running dask scheduler (``tcp://host:8786``);
+            chunks go to its workers instead.
+        resume: keep the rows of an earlier, interrupted run of the same
+            ``out`` and calibrate only the files not yet in it.
+        measured_speed: use a measured ``w_m`` as input (see ``BenchData.experiment``).
+        outlier_z: robust z-score threshold of the fleet check.
+        progress: called as ``progress(done, total)`` after each chunk.
+    """
+    import time
+
+    t0 = time.perf_counter()
+    out = Path(out)
+    if out.suffix.lower() != ".parquet":
+        raise DrivecalError(f"--out {out}: the results table is written as Parquet; give a .parquet file name.")
+    if chunk < 1:
+        raise DrivecalError(f"--chunk {chunk}: give a positive number of motors per chunk.")
+    parts = parts_dir(out)
+    if not resume and (out.exists() or parts.exists()):
+        raise DrivecalError(
+            f"--out {out}: results of an earlier run exist; pass --resume to continue it, or remove "
+            f"{out.name} (and {parts.name}/) to start again."
+        )
+    files = [str(p) for p in discover(inputs)]
+    done = _read_done(out) if resume else pd.DataFrame()
+    done_files = set(done["file"]) if len(done) else set()
+    todo = [f for f in files if f not in done_files]
+    chunks = [todo[i : i + chunk] for i in range(0, len(todo), chunk)]
+    parts.mkdir(parents=True, exist_ok=True)
+    first_part = len(list(parts.glob("part-*.parquet")))
+
+    def save(k: int, table: pd.DataFrame) -> None:
+        with atomic_path(parts / f"part-{first_part + k:06d}.parquet") as tmp:
+            table.to_parquet(tmp, index=False)
+
+    progress(len(done_files & set(files)), len(files))
+    finished = len(done_files & set(files))
+    for k, table in _run_chunks(chunks, motor_file, chunk, measured_speed, workers, scheduler):
+        save(k, table)
+        finished += len(table)
+        progress(finished, len(files))
+
+    table = _read_done(out)  # this run's rows and any earlier ones
+    order = {f: i for i, f in enumerate(files)}
+    table = table.assign(_order=table["file"].map(order).fillna(len(files))).sort_values(["_order", "file"])
+    table = fleet_checks(table.drop(columns="_order").reset_index(drop=True), outlier_z)
+    with atomic_path(out) as tmp:
+        table.to_parquet(tmp, index=False)
+    shutil.rmtree(parts, ignore_errors=True)
+
+    status = table["status"]
+    return BatchSummary(
+        out=out,
+        total=len(table),
+        done_before=len(done_files & set(files)),
+        calibrated=int((status == STATUS_CALIBRATED).sum()),
+        partial=int((status == STATUS_PARTIAL).sum()),
+        failed=int(status.isin([STATUS_INVALID, STATUS_NOT_CONVERGED]).sum()),
+        outliers=tuple(table.loc[table["outlier"], "serial"].astype(str)),
+        mismatch=tuple(table.loc[table.get("mismatch", pd.Series(False, index=table.index)).fillna(False)
+                                 .astype(bool), "serial"].astype(str)),
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _run_chunks(
+    chunks: list[list[str]],
+    motor_file: MotorFile,
+    chunk: int,
+    measured_speed: bool,
+    workers: int | None,
+    scheduler: str | None,
+) -> Iterable[tuple[int, pd.DataFrame]]:
+    """Yield ``(chunk index, rows)`` as chunks finish, here or on dask workers."""
+    if not chunks:
+        return
+    if workers is None:
+        workers = min(os.cpu_count() or 1, len(chunks))
+    if scheduler is None and workers <= 1:
+        for k, paths in enumerate(chunks):
+            yield k, calibrate_files(paths, motor_file, chunk=chunk, measured_speed=measured_speed)
+        return
+
+    from distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    try:
+        if scheduler is None:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=40)
+            client = Client(cluster)
+        else:
+            try:
+                client = Client(scheduler, timeout="10s")
+            except OSError as exc:
+                raise DrivecalError(f"--scheduler {scheduler}: cannot connect ({exc}); start it with "
+                                    "`dask scheduler` and check the address.") from None
+        with client:
+            futures = {
+                client.submit(calibrate_files, paths, motor_file, chunk=chunk, measured_speed=measured_speed,
+                              pure=False): k
+                for k, paths in enumerate(chunks)
+            }
+            for future in as_completed(futures):
+                yield futures[future], future.result()
+    finally:
+        if cluster is not None:
+            cluster.close()
+
+
+# --------------------------------------------------------------------------- synthetic fleets
+
+
+@functools.partial(jax.jit, static_argnames=("names",))
+def _fleet_states(theta: jnp.ndarray, nominal: MotorParams, experiment: Experiment, names) -> jnp.ndarray:
+    return jax.vmap(lambda th: predict_currents_and_speed(nominal.with_vector(names, th), experiment))(theta)
+
+
+def predict_currents_and_speed(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
+    """``[i_d, i_q, w_m]`` (A, A, rad/s) at every sample, shape (M, 3)."""
+    from .forward import simulate_states
+
+    return simulate_states(motor, experiment)[:, :3]
+
+
+def synthetic_fleet(
+    directory: str | os.PathLike,
+    count: int,
+    *,
+    plan=None,
+    nominal: MotorParams | None = None,
+    spread: float = 0.02,
+    noise: float = 0.02,
+    seed: int = 0,
+    outliers: dict[int, dict[str, float]] | None = None,
+    suffix: str = ".parquet",
+) -> pd.DataFrame:
+    """Write ``count`` bench files of a synthetic production run; return the true parameters.
+
+    Each motor's R, Ld, Lq, lambda_m are the nominal values times
+    ``1 + spread * N(0, 1)`` (manufacturing spread); ``outliers`` maps a motor
+    index to factors that plant a fault (``{"lambda_m": 0.85}``: a demagnetised
+    rotor). Currents and speed come from drivecal's forward model (equal to
+    the Jaxonomy engine to ~1e-9 A, and thousands of times faster for a fleet)
+    plus Gaussian current noise of ``noise`` A. Files are named
+    ``SN<index>.<suffix>`` and carry a ``serial`` column.
+    """
+    from .motor import DEFAULT_MOTOR
+    from .plan import default_plan
+
+    plan = plan or default_plan()
+    nominal = nominal or DEFAULT_MOTOR
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    theta = np.asarray(nominal.vector(ESTIMATED)) * (1.0 + spread * rng.standard_normal((count, len(ESTIMATED))))
+    planted = np.zeros(count, dtype=bool)
+    for index, factors in (outliers or {}).items():
+        for name, factor in factors.items():
+            theta[index, ESTIMATED.index(name)] *= factor
+        planted[index] = True
+    experiment = Experiment.from_plan(plan)
+    template = BenchData(
+        tuple(
+            dataclasses.replace(s, currents=np.zeros((s.num_samples, 2)), w_m=np.zeros(s.num_samples))
+            for s in _plan_segments(plan)
+        ),
+        plan.sample_rate,
+    ).to_frame()
+    serials = [f"SN{i:06d}" for i in range(count)]
+    for start in range(0, count, 512):
+        states = np.asarray(_fleet_states(jnp.asarray(theta[start : start + 512]), nominal, experiment, ESTIMATED))
+        for k, x in enumerate(states, start):
+            frame = template.assign(
+                i_d=x[:, 0] + noise * rng.standard_normal(len(x)),
+                i_q=x[:, 1] + noise * rng.standard_normal(len(x)),
+                w_m=np.where(template["locked"] == 1, 0.0, x[:, 2]),
+                serial=serials[k],
+            )
+            path = directory / f"{serials[k]}{suffix}"
+            if suffix == ".parquet":
+                frame.to_parquet(path, index=False)
+            else:
+                frame.to_csv(path, index=False, float_format="%.17g")
+    truth = pd.DataFrame(theta, columns=list(ESTIMATED))
+    truth.insert(0, "serial", serials)
+    truth["planted_outlier"] = planted
+    return truth
+
+
+def _plan_segments(plan):
+    from .data import SegmentData
+
+    for seg in plan.segments:
+        n = seg.num_samples(plan.sample_rate)
+        yield SegmentData(seg.name, seg.locked, np.arange(n) / plan.sample_rate, seg.voltages(plan.sample_rate),
+                          np.zeros((n, 2)))
