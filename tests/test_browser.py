@@ -73,3 +73,15 @@ def test_demo_report_renders_in_headless_chromium(demo_run, tmp_path):
     assert rows == 2 * (1 + 4)  # header + one row per parameter, two designs
     assert first_verdict.startswith("Verdict: calibrated")
     assert errors == []
+
+
+def test_missing_browser_skips_or_fails_as_required(monkeypatch):
+    import sys
+
+    monkeypatch.setattr(sys.modules[__name__], "CHROMIUM", ("no-such-browser-here",))
+    monkeypatch.delenv("DRIVECAL_REQUIRE_BROWSER", raising=False)
+    with pytest.raises(pytest.skip.Exception, match="chromium"):
+        _browser()
+    monkeypatch.setenv("DRIVECAL_REQUIRE_BROWSER", "1")
+    with pytest.raises(pytest.fail.Exception, match="DRIVECAL_REQUIRE_BROWSER=1"):
+        _browser()
