@@ -40,6 +40,9 @@ from .forward import Experiment, predict_currents, simulate_states  # noqa: E402
 from .identify import Identifiability, assess_identifiability, sensitivity_jacobian  # noqa: E402
 from .motor import DEFAULT_MOTOR, ESTIMATED, FIXED, UNITS, MotorParams, dq_derivatives  # noqa: E402
 from .plan import Plan, Segment, default_plan, locked_q_step_plan  # noqa: E402
+from .record import build_result, load_result  # noqa: E402
+from .html import write_html_report  # noqa: E402
+from .gains import CurrentLoopDesign, design_current_loop  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -76,5 +79,10 @@ __all__ = [
     "datasheet_guess",
     "run_demo",
     "write_demo_outputs",
+    "build_result",
+    "load_result",
+    "write_html_report",
+    "CurrentLoopDesign",
+    "design_current_loop",
     "__version__",
 ]

@@ -230,7 +230,8 @@ def _print_gains(result, console: Console, source: str) -> None:
     loop = Table(title=f"closed loop of these gains on true motors drawn from the covariance ({result.num_samples} "
                        "draws): at the estimate, MC mean [2.5 %, 97.5 %]", title_justify="left")
     for col in ("axis", "-3 dB bandwidth [Hz]", "bandwidth MC [Hz]", "phase margin [deg]", "phase margin MC [deg]"):
-        loop.add_column(col, justify="left" if col == "axis" else "right", no_wrap=True)
+        # escape: rich would read a lower-case "[deg]" as a style tag
+        loop.add_column(escape(col), justify="left" if col == "axis" else "right", no_wrap=True)
     for ax in result.axes:
         bw, pm = ax.bandwidth, ax.phase_margin
         loop.add_row(ax.axis, f"{bw.nominal:.6g}", f"{bw.mean:.6g} [{bw.p025:.6g}, {bw.p975:.6g}]",
