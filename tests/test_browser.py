@@ -35,7 +35,8 @@ def _browser():
     except ImportError:
         reason = "selenium is not installed (pip install -e '.[dev]')"
     if reason is None and not (chromium and driver):
-        reason = "no chromium/chromedriver on PATH (Debian: apt-get install chromium chromium-driver; `make test` does it as root)"
+        reason = ("no chromium/chromedriver on PATH (Debian: apt-get install chromium chromium-driver; "
+                  "`make test` does it as root)")
     if reason:
         if required:
             pytest.fail(f"DRIVECAL_REQUIRE_BROWSER=1 but {reason}")

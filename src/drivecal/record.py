@@ -31,7 +31,7 @@ import numpy as np
 from .data import BenchData
 from .errors import DrivecalError
 from .fit import Calibration
-from .forward import predict_currents
+from .forward import Experiment, predict_currents
 from .plan import Plan
 from .report import plan_to_dict
 from .verdict import residual_checks, verdict
@@ -71,9 +71,17 @@ def bench_sha256(bench: BenchData) -> str:
     return hashlib.sha256(csv.encode()).hexdigest()
 
 
-def segment_traces(calibration: Calibration, bench: BenchData) -> list[dict[str, Any]]:
-    """Per segment: time, voltages, measured and predicted currents as JSON lists."""
-    predicted = np.asarray(predict_currents(calibration.motor, bench.experiment()))
+def segment_traces(calibration: Calibration, bench: BenchData, experiment: Experiment | None = None
+                   ) -> list[dict[str, Any]]:
+    """Per segment: time, voltages, measured and predicted currents as JSON lists.
+
+    Args:
+        calibration: the fit; the prediction is at its estimate.
+        bench: the data it was fitted to.
+        experiment: the experiment the fit used (default ``bench.experiment()``).
+    """
+    experiment = bench.experiment() if experiment is None else experiment
+    predicted = np.asarray(predict_currents(calibration.motor, experiment))
     out, k = [], 0
     for seg in bench.segments:
         n = seg.num_samples
@@ -104,6 +112,7 @@ def build_result(
     bench: BenchData,
     *,
     plan: Plan | None = None,
+    experiment: Experiment | None = None,
     noise_sigma: float | None = None,
     input_path: str | os.PathLike | None = None,
     input_sha256: str | None = None,
@@ -115,6 +124,8 @@ def build_result(
         calibration: the fit.
         bench: the data it was fitted to.
         plan: the plan that produced the data, if known.
+        experiment: the experiment the fit used, if not ``bench.experiment()``
+            (e.g. with measured speed as an input): the predictions must match the fit.
         noise_sigma: the stated current-sensor noise (A) the residuals are
             judged against; default the noise assumed by the identifiability check.
         input_path: the bench file; its bytes are hashed unless ``input_sha256`` is given.
@@ -122,7 +133,7 @@ def build_result(
         motor_file: path of the motor TOML the prior came from.
     """
     doc = calibration.to_dict()
-    segments = segment_traces(calibration, bench)
+    segments = segment_traces(calibration, bench, experiment)
     stated = float(noise_sigma) if noise_sigma is not None else calibration.identifiability.noise_sigma
     doc["segments"] = segments
     doc["residuals"] = residual_checks(segment_residuals(segments), float(calibration.sigma_hat), stated)
