@@ -130,3 +130,20 @@ def test_report_refuses_bad_input_in_one_line(content, fragment, tmp_path, capsy
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and err.startswith("drivecal: error:") and str(path) in err
     assert fragment in err and not (tmp_path / "r.html").exists()
+
+
+def test_fresh_result_and_its_saved_json_render_the_same_page(poor_fit, poor_bench):
+    """What the `fit` command will do: build_result -> write_json and write_html_report."""
+    from drivecal.html import render_html
+
+    doc = build_result(poor_fit, poor_bench, noise_sigma=NOISE)
+    page = render_html(doc, generated="T")
+    assert page == render_html(_via_json(doc), generated="T")
+    assert page.count("<figure>") == 6 and '<div class="verdict partial"' in page
+
+
+def test_report_and_gains_have_help(capsys):
+    for command in ("report", "gains"):
+        assert main([command, "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "--html" in out and "--bandwidth" in out and "[Hz]" in out

@@ -19,6 +19,7 @@ import base64
 import datetime as _dt
 import html as _html
 import io
+import json
 import math
 import os
 from typing import Any, Mapping
@@ -214,6 +215,9 @@ def render_html(result: Mapping[str, Any], *, generated: str | None = None) -> s
     """
     from .record import result_fits
 
+    # Render from exactly what a saved file holds (tuples become lists, numpy
+    # scalars plain floats): a fresh result and its saved JSON give one page.
+    result = json.loads(json.dumps(result, allow_nan=False))
     stamp = generated or _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
     fits = result_fits(dict(result))
     multi = len(fits) > 1
