@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench install clean
+.PHONY: demo test bench install browser clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -14,10 +14,26 @@ $(STAMP): pyproject.toml constraints.txt
 
 install: $(STAMP)
 
+# The HTML report's browser test needs headless Chromium and its driver (Debian
+# packages chromium, chromium-driver). Installed when missing and possible
+# (root, or password-less sudo); otherwise the test skips and says why.
+browser:
+	@if command -v chromium >/dev/null 2>&1 && command -v chromedriver >/dev/null 2>&1; then \
+		: ; \
+	elif ! command -v apt-get >/dev/null 2>&1; then \
+		echo "note: no chromium/chromedriver and no apt-get: the browser test will be skipped"; \
+	elif [ "$$(id -u)" = 0 ]; then \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver; \
+	elif command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then \
+		sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver; \
+	else \
+		echo "note: chromium/chromedriver missing and no root or sudo: the browser test will be skipped"; \
+	fi
+
 demo: $(STAMP)
 	$(BIN)/drivecal demo --out demo-output
 
-test: $(STAMP)
+test: $(STAMP) browser
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -34,14 +38,35 @@ def clean_poor(truth) -> dc.BenchData:
 
 
 @pytest.fixture(scope="session")
-def default_fit(clean_default, guess) -> dc.Calibration:
-    """The default scenario: sigma 20 mA, seed 1, start at the guess."""
-    return dc.fit(clean_default.add_noise(NOISE, 1), guess)
+def default_bench(clean_default) -> dc.BenchData:
+    """The default scenario's data: sigma 20 mA, seed 1."""
+    return clean_default.add_noise(NOISE, 1)
 
 
 @pytest.fixture(scope="session")
-def poor_fit(clean_poor, guess) -> dc.Calibration:
-    return dc.fit(clean_poor.add_noise(NOISE, 2), guess)
+def poor_bench(clean_poor) -> dc.BenchData:
+    return clean_poor.add_noise(NOISE, 2)
+
+
+@pytest.fixture(scope="session")
+def default_fit(default_bench, guess) -> dc.Calibration:
+    """The default scenario: sigma 20 mA, seed 1, start at the guess."""
+    return dc.fit(default_bench, guess)
+
+
+@pytest.fixture(scope="session")
+def poor_fit(poor_bench, guess) -> dc.Calibration:
+    return dc.fit(poor_bench, guess)
+
+
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory):
+    """One real `drivecal demo --json --out DIR` in a fresh process: (CompletedProcess, DIR)."""
+    out = tmp_path_factory.mktemp("demo") / "out"
+    exe = Path(sys.executable).with_name("drivecal")
+    proc = subprocess.run([str(exe), "demo", "--json", "--out", str(out)], capture_output=True, text=True,
+                          timeout=600)
+    return proc, out
 
 
 def true_vector(truth: dc.MotorParams) -> np.ndarray:

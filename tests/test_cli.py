@@ -3,24 +3,12 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from drivecal.cli import main
-
-
-@pytest.fixture(scope="module")
-def demo_run(tmp_path_factory):
-    """One real `drivecal demo --json --out DIR` in a fresh process."""
-    out = tmp_path_factory.mktemp("demo") / "out"
-    exe = Path(sys.executable).with_name("drivecal")
-    proc = subprocess.run([str(exe), "demo", "--json", "--out", str(out)], capture_output=True, text=True,
-                          timeout=600)
-    return proc, out
 
 
 def test_demo_json_parses_and_carries_the_numbers(demo_run):

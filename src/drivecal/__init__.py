@@ -46,6 +46,9 @@ from .data import BenchData, SegmentData, bench_from_frame, load_bench  # noqa: 
 from .errors import DataError, DrivecalError, PlanError  # noqa: E402
 from .demo import DemoResult, DesignRun, datasheet_guess, run_demo, write_demo_outputs  # noqa: E402
 from .fit import Calibration, FitOptions, fit, fit_currents  # noqa: E402
+from .gains import CurrentLoopDesign, design_current_loop  # noqa: E402
+from .html import write_html_report  # noqa: E402
+from .record import build_result, load_result  # noqa: E402
 from .forward import Experiment, predict_currents, simulate_states  # noqa: E402
 from .identify import Identifiability, assess_identifiability, check_requested, sensitivity_jacobian  # noqa: E402
 from .motor import DEFAULT_MOTOR, ESTIMATED, FIXED, UNITS, MotorParams, dq_derivatives  # noqa: E402
@@ -59,6 +62,7 @@ __version__ = "0.1.0"
 __all__ = [
     "BenchData",
     "Calibration",
+    "CurrentLoopDesign",
     "DEFAULT_MOTOR",
     "DataError",
     "DrivecalError",
@@ -74,16 +78,20 @@ __all__ = [
     "SegmentData",
     "UNITS",
     "assess_identifiability",
+    "build_result",
     "default_plan",
+    "design_current_loop",
     "dq_derivatives",
     "engine_bench",
     "fit",
     "fit_currents",
     "locked_q_step_plan",
+    "load_result",
     "predict_currents",
     "sensitivity_jacobian",
     "simulate_states",
     "synthetic_bench",
+    "write_html_report",
     "DemoResult",
     "DesignRun",
     "datasheet_guess",

@@ -35,12 +35,31 @@ def _quiet_jaxonomy() -> None:
 
 def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float) -> tuple[np.ndarray, np.ndarray]:
     """Run one segment on the engine; return sample times (s) and states (N, 4)."""
+    from .export import pmsm_block
+
+    block = pmsm_block(motor, locked=bool(segment.locked), name="pmsm")
+    return run_held_voltages(block, segment.voltages(sample_rate), sample_rate, label=f"segment '{segment.name}'")
+
+
+def run_held_voltages(block, voltages: np.ndarray, sample_rate: float, *, label: str = "segment"):
+    """Drive a PMSM block on the engine with per-sample voltages held between samples.
+
+    Args:
+        block: a PMSM-like block (input port 0: ``[v_d, v_q]``, output port 0: state).
+        voltages: ``[v_d, v_q]`` (V), shape (N, 2); row k acts on ``[t_k, t_k+1)``.
+        sample_rate: samples per second (Hz).
+        label: names the run in the error message.
+
+    Returns:
+        Sample times ``t_k = k / sample_rate`` (s), shape (N,), and the state at
+        each, shape (N, 4) (A, A, rad/s, rad).
+    """
     import jax.numpy as jnp
     from jaxonomy import DiagramBuilder, SimulatorOptions, simulate
     from jaxonomy.library import SourceBlock, ZeroOrderHold
-    from jaxonomy.library.drives import PMSM
 
-    volts = jnp.asarray(segment.voltages(sample_rate))
+    _quiet_jaxonomy()
+    volts = jnp.asarray(voltages)
     n = volts.shape[0]
     dt = 1.0 / sample_rate
 
@@ -52,20 +71,7 @@ def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float) -> tu
     builder = DiagramBuilder()
     source = builder.add(SourceBlock(held_sample, name="v_dq_samples"))
     hold = builder.add(ZeroOrderHold(dt, name="pwm_hold"))
-    pmsm = builder.add(
-        PMSM(
-            R=float(motor.R),
-            Ld=float(motor.Ld),
-            Lq=float(motor.Lq),
-            lambda_m=float(motor.lambda_m),
-            pole_pairs=float(motor.pole_pairs),
-            J=float(motor.J),
-            B=float(motor.B),
-            T_load=float(motor.T_load),
-            locked=bool(segment.locked),
-            name="pmsm",
-        )
-    )
+    pmsm = builder.add(block)
     builder.connect(source.output_ports[0], hold.input_ports[0])
     builder.connect(hold.output_ports[0], pmsm.input_ports[0])
     diagram = builder.build()
@@ -92,7 +98,7 @@ def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float) -> tu
             return t_samples, x_rec[idx]
         # A full buffer is thinned silently: record again with more room.
         buffer_length *= 4
-    raise PlanError(f"segment '{segment.name}': the engine did not record every sample instant.")
+    raise PlanError(f"{label}: the engine did not record every sample instant.")
 
 
 def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False) -> BenchData:

@@ -57,7 +57,8 @@ def _design_table(run: drivecal.DesignRun, truth: drivecal.MotorParams) -> Table
                         f"sigma_hat {float(cal.sigma_hat) * 1e3:.2f} mA", title_justify="left")
     for col in ("parameter", "unit", "true", "initial", "estimate", "error [%]", "error [SE]", "95 % CI"):
         # one row per parameter: never wrap a number
-        table.add_column(escape(col), justify="left" if col in ("parameter", "unit", "95 % CI") else "right", no_wrap=True)
+        justify = "left" if col in ("parameter", "unit", "95 % CI") else "right"
+        table.add_column(escape(col), justify=justify, no_wrap=True)
     for i, n in enumerate(cal.names):
         e = errors[n]
         if cal.identifiable[i]:
@@ -181,7 +182,8 @@ def _fit_table(cal: drivecal.Calibration) -> Table:
     table = Table(title=f"{cal.source}: {cal.message}, {int(cal.iterations)} LM steps, "
                         f"sigma_hat {float(cal.sigma_hat) * 1e3:.3f} mA", title_justify="left")
     for col in ("parameter", "unit", "prior", "estimate", "std err", "95 % CI", "rel. CI [%]"):
-        table.add_column(escape(col), justify="left" if col in ("parameter", "unit", "95 % CI") else "right", no_wrap=True)
+        justify = "left" if col in ("parameter", "unit", "95 % CI") else "right"
+        table.add_column(escape(col), justify=justify, no_wrap=True)
     for i, n in enumerate(cal.names):
         prior = _fmt(float(getattr(cal.prior, n)))
         if cal.identifiable[i]:
@@ -200,10 +202,13 @@ def _fit_table(cal: drivecal.Calibration) -> Table:
 @click.option("--measured-speed/--simulated-speed", default=True, show_default=True,
               help="On free segments with a w_m column, use the measured speed as an input (J and B not needed); "
                    "--simulated-speed integrates the speed from J and B of the motor file instead.")
+@click.option("--noise", type=_Positive(), default=None,
+              help="The current sensor's noise standard deviation [A], if known: a sigma_hat well above it "
+                   "is reported as model mismatch. Without it only the whiteness of the residuals is judged.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
-              help="Directory for report.json and the PNG figures (created if missing).")
+              help="Directory for report.json, report.html and the PNG figures (created if missing).")
 @click.option("--json", "as_json", is_flag=True, help="Print the result JSON on stdout instead of the table.")
-def fit_command(bench_path, motor_path, measured_speed, out_dir, as_json):
+def fit_command(bench_path, motor_path, measured_speed, noise, out_dir, as_json):
     """Calibrate R, Ld, Lq, lambda_m from a bench file (.csv, .parquet or .mat).
 
     \b
@@ -222,7 +227,8 @@ def fit_command(bench_path, motor_path, measured_speed, out_dir, as_json):
     console = _console(as_json)
     with console.status("checking identifiability and fitting..."):
         cal = drivecal.fit(bench, prior, names=motor_file.names, measured_speed=measured_speed)
-        payload = cal.to_dict()
+        payload = drivecal.build_result(cal, bench, experiment=experiment, noise_sigma=noise, input_path=bench_path,
+                                        motor_file=motor_path)
         payload["measured_speed"] = bool(measured_speed and bench.has_measured_speed)
         payload["drivecal_version"] = drivecal.__version__
         if out_dir is not None:
@@ -238,6 +244,11 @@ def fit_command(bench_path, motor_path, measured_speed, out_dir, as_json):
     for name, why in ident.reasons.items():
         console.print(f"  [red]{name}[/red]: {why}")
     console.print(_fit_table(cal))
+    verdict = payload["verdict"]
+    colour = {"calibrated": "green"}.get(verdict["status"], "red")
+    console.print(f"verdict: [{colour}]{escape(verdict['headline'])}[/{colour}]")
+    for line in verdict.get("details", []):
+        console.print(f"  {escape(line)}")
     if out_dir is not None:
         console.print(f"wrote {len(written)} files to {out_dir}/: " + ", ".join(p.name for p in written))
 
@@ -257,7 +268,8 @@ def _write_fit_outputs(cal, payload, out_dir):
         save_figure(fig, out / name)
         written.append(out / name)
     write_json(out / "report.json", payload)
-    return written + [out / "report.json"]
+    drivecal.write_html_report(payload, out / "report.html")
+    return written + [out / "report.json", out / "report.html"]
 
 
 @cli.command()
@@ -319,7 +331,8 @@ def _print_design(report, plan_path, console: Console) -> None:
                   f"{ident.condition_number:.3g} -> {verdict}")
     table = Table(title=f"predicted 95 % intervals at noise {ident.noise_sigma * 1e3:g} mA", title_justify="left")
     for col in ("parameter", "unit", "nominal", "± 95 % CI", "rel. [%]", "identifiable"):
-        table.add_column(escape(col), justify="left" if col in ("parameter", "unit", "identifiable") else "right", no_wrap=True)
+        justify = "left" if col in ("parameter", "unit", "identifiable") else "right"
+        table.add_column(escape(col), justify=justify, no_wrap=True)
     for i, n in enumerate(ident.names):
         nominal = float(getattr(report.motor, n))
         half = ident.predicted_ci95[i]
@@ -412,6 +425,116 @@ def _print_batch_summary(summary, console: Console) -> None:
     if summary.mismatch:
         console.print(f"model mismatch suspected ({len(summary.mismatch)}): " + ", ".join(summary.mismatch))
 
+
+# --- report and hand-off commands (issue 5) -------------------------------------------------------
+
+
+@cli.command()
+@click.argument("result_json", type=click.Path(dir_okay=False))
+@click.option("--html", "html_out", type=click.Path(dir_okay=False, writable=True), default=None,
+              help="Write the self-contained HTML report (figures embedded) to this file.")
+@click.option("--json", "as_json", is_flag=True, help="Print the verdict of each fit as JSON on stdout.")
+def report(result_json, html_out, as_json):
+    """Print the calibration report of a saved result JSON; optionally write the HTML report.
+
+    RESULT_JSON is a file written by `drivecal fit` or `drivecal demo --out DIR`
+    (DIR/report.json). The HTML equals the one the run wrote, apart from its
+    time stamp.
+    """
+    from pathlib import Path
+
+    from drivecal.html import write_html_report
+    from drivecal.record import load_result, result_fits
+
+    doc = load_result(result_json)
+    if html_out is not None:
+        target = Path(html_out)
+        if target.is_dir() or not target.parent.is_dir():
+            raise drivecal.DrivecalError(f"--html {target}: not a file in an existing directory; "
+                                         "give a path like out/report.html.")
+    fits = result_fits(doc)
+    if as_json:
+        click.echo(json.dumps({k: f.get("verdict") for k, f in fits.items()}, indent=2))
+    else:
+        for label, fit_doc in fits.items():
+            verdict = fit_doc.get("verdict") or {}
+            click.echo(f"== {label}: {verdict.get('headline', '')}")
+            click.echo(str(drivecal.Calibration.from_dict(fit_doc)))
+            click.echo()
+    if html_out is not None:
+        write_html_report(doc, html_out)
+        click.echo(f"wrote {html_out}", err=as_json)
+
+
+@cli.command()
+@click.argument("result_json", type=click.Path(dir_okay=False))
+@click.option("--bandwidth", type=_Positive(), required=True,
+              help="Requested closed-loop current bandwidth [Hz] (the crossover w_c = 2*pi*bandwidth).")
+@click.option("--sample-rate", type=_Positive(), default=None,
+              help="Controller sample rate [Hz]: also give the discrete-time gains and judge the loop with "
+                   "its one-sample computation delay. Without it the loop is judged in continuous time.")
+@click.option("--design", default=None, help="Which fit of a demo result (default: the first, 'default').")
+@click.option("--samples", type=click.IntRange(min=100), default=4000, show_default=True,
+              help="Monte Carlo draws from the parameter covariance.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Monte Carlo seed.")
+@click.option("--json", "as_json", is_flag=True, help="Print the gains JSON on stdout instead of tables.")
+def gains(result_json, bandwidth, sample_rate, design, samples, seed, as_json):
+    """Current-loop PI gains per axis from a saved calibration, with their uncertainty.
+
+    \b
+    Pole-zero cancellation per axis: Kp = L*w_c [V/A], Ki = R*w_c [V/(A*s)],
+    w_c = 2*pi*bandwidth (L = Ld for d, Lq for q). The uncertainty of Kp and Ki
+    is propagated from the parameter covariance to first order and by Monte
+    Carlo; the achieved closed-loop bandwidth and phase margin are reported
+    over true motors drawn from the confidence region.
+    """
+    from drivecal.gains import design_current_loop
+    from drivecal.record import load_result, select_fit
+
+    doc = load_result(result_json)
+    label, fit_doc = select_fit(doc, design, source=str(result_json))
+    cal = drivecal.Calibration.from_dict(fit_doc)
+    result = design_current_loop(cal, bandwidth, sample_rate_hz=sample_rate, num_samples=samples, seed=seed)
+    if as_json:
+        click.echo(json.dumps({"result": str(result_json), "design": label, **result.to_dict()}, indent=2))
+        return
+    console = Console(width=None if sys.stdout.isatty() else 120)
+    _print_gains(result, console, f"{result_json} ({label})")
+
+
+def _print_gains(result, console: Console, source: str) -> None:
+    from rich.markup import escape
+
+    console.print(escape(f"current-loop PI gains for {source}: bandwidth {result.bandwidth_hz:g} Hz "
+                         f"(w_c = {result.omega_c:.6g} rad/s); {result.discretisation}"))
+    table = Table(title="gains by pole-zero cancellation: Kp = L*w_c, Ki = R*w_c", title_justify="left")
+    for col in ("axis", "gain [unit]", "value", "SE first-order", "SD Monte Carlo", "MC / first-order [-]",
+                "from"):
+        table.add_column(col, justify="left" if col in ("axis", "gain [unit]", "from") else "right", no_wrap=True)
+    for ax in result.axes:
+        rows = [("Kp [V/A]", ax.kp, ax.kp_se, ax.kp_sd_mc, f"{ax.inductance_name} = {_fmt(ax.inductance)} H"),
+                ("Ki [V/(A*s)]", ax.ki, ax.ki_se, ax.ki_sd_mc, f"R = {_fmt(ax.resistance)} ohm")]
+        if ax.ki_ts is not None:
+            ts = 1.0 / result.sample_rate_hz
+            rows.append(("Ki*Ts [V/A]", ax.ki_ts, ax.ki_se * ts, ax.ki_sd_mc * ts, "discrete integrator step"))
+        for name, value, se, sd, origin in rows:
+            ratio = sd / se if math.isfinite(se) and se > 0 else math.nan
+            label = ax.axis if ax.calibrated else f"{ax.axis} (not calibrated)"
+            table.add_row(label, name, _fmt(value), _fmt(se), _fmt(sd), "-" if not math.isfinite(ratio)
+                          else f"{ratio:.3f}", origin)
+    console.print(table)
+    loop = Table(title=f"closed loop of these gains on true motors drawn from the covariance ({result.num_samples} "
+                       "draws): at the estimate, MC mean [2.5 %, 97.5 %]", title_justify="left")
+    for col in ("axis", "-3 dB bandwidth [Hz]", "bandwidth MC [Hz]", "phase margin [deg]", "phase margin MC [deg]"):
+        # escape: rich would read a lower-case "[deg]" as a style tag
+        loop.add_column(escape(col), justify="left" if col == "axis" else "right", no_wrap=True)
+    for ax in result.axes:
+        bw, pm = ax.bandwidth, ax.phase_margin
+        loop.add_row(ax.axis, f"{bw.nominal:.6g}", f"{bw.mean:.6g} [{bw.p025:.6g}, {bw.p975:.6g}]",
+                     f"{pm.nominal:.4g}", f"{pm.mean:.4g} [{pm.p025:.4g}, {pm.p975:.4g}]")
+    console.print(loop)
+    for w in result.warnings:
+        console.print(f"[yellow]warning[/yellow]: {escape(w)}")
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning bad input into one line and exit status 2."""

@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 from typing import Any, Callable
 
@@ -21,7 +22,8 @@ from .data import BenchData
 from .fit import Calibration, fit
 from .motor import DEFAULT_MOTOR, MotorParams
 from .plan import Plan, default_plan, locked_q_step_plan
-from .report import plan_to_dict, prepare_output_dir, save_figure, write_json
+from .record import build_result, software_versions
+from .report import prepare_output_dir, save_figure, write_json
 
 #: The datasheet guess the demo starts from, relative to the truth.
 GUESS_FACTORS = {"R": 1.5, "Ld": 0.6, "Lq": 1.4, "lambda_m": 0.7}
@@ -58,8 +60,13 @@ class DesignRun:
             }
         return out
 
-    def to_dict(self, truth: MotorParams) -> dict[str, Any]:
-        return {**self.calibration.to_dict(), "plan": plan_to_dict(self.plan), "truth": self.errors(truth)}
+    def to_dict(self, truth: MotorParams, noise_sigma: float | None = None) -> dict[str, Any]:
+        """The full result JSON of this design (``record.build_result``) plus ``truth``.
+
+        The input hash is that of the synthetic bench data (there is no file).
+        """
+        doc = build_result(self.calibration, self.bench, plan=self.plan, noise_sigma=noise_sigma)
+        return {**doc, "truth": self.errors(truth)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,9 +88,10 @@ class DemoResult:
             "truth": self.truth.as_dict(),
             "initial": self.guess.as_dict(),
             "designs": {
-                "default": self.default.to_dict(self.truth),
-                "locked_q_step": self.poor.to_dict(self.truth),
+                "default": self.default.to_dict(self.truth, self.noise),
+                "locked_q_step": self.poor.to_dict(self.truth, self.noise),
             },
+            "versions": software_versions(),
         }
 
 
@@ -118,8 +126,14 @@ def run_demo(
 
 
 def write_demo_outputs(result: DemoResult, out_dir: str | Path) -> list[Path]:
-    """Write ``report.json`` and the PNG figures into ``out_dir``; return the paths."""
+    """Write ``report.json``, ``report.html`` and the PNG figures into ``out_dir``; return the paths.
+
+    The HTML is rendered from the JSON document exactly as saved (passed
+    through ``json``), so ``drivecal report DIR/report.json --html X`` gives
+    the same page apart from its time stamp.
+    """
     from . import plots
+    from .html import write_html_report
 
     out = prepare_output_dir(out_dir)
     written = []
@@ -140,6 +154,9 @@ def write_demo_outputs(result: DemoResult, out_dir: str | Path) -> list[Path]:
              result.poor.label: result.poor.calibration.identifiability}
         ),
     )
-    write_json(out / "report.json", result.to_dict())
+    doc = json.loads(json.dumps(result.to_dict(), allow_nan=False))
+    write_json(out / "report.json", doc)
     written.append(out / "report.json")
+    write_html_report(doc, out / "report.html")
+    written.append(out / "report.html")
     return written

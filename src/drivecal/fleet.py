@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import glob
-import hashlib
 import math
 import os
 import shutil
@@ -38,14 +37,12 @@ from .fit import fit_currents
 from .forward import Experiment, predict_currents, stack_experiments
 from .identify import check_requested
 from .motor import ESTIMATED, MotorParams
+from .record import file_sha256
 from .report import atomic_path
+from .verdict import WHITENESS_ALPHA, ljung_box
 
 #: Robust z-score beyond which a parameter marks a motor as an outlier.
 DEFAULT_OUTLIER_Z = 5.0
-#: Residual diagnostics: a segment RMS this many times sigma_hat, or a lag-1
-#: residual autocorrelation this many standard errors from zero, flags a mismatch.
-MISMATCH_RMS_RATIO = 1.5
-MISMATCH_LAG1_Z = 5.0
 
 STATUS_CALIBRATED = "calibrated"
 STATUS_PARTIAL = "partially calibrated"
@@ -74,18 +71,10 @@ def discover(inputs: Sequence[str | os.PathLike]) -> list[Path]:
         else:
             matches = [Path(p) for p in glob.glob(str(item), recursive=True) if Path(p).is_file()]
         if not matches:
-            raise DrivecalError(f"{item}: no bench files (.csv, .parquet, .mat) found there; check the path or pattern.")
+            raise DrivecalError(f"{item}: no bench files (.csv, .parquet, .mat) found there; "
+                                "check the path or pattern.")
         found.update(p.resolve() for p in matches)
     return sorted(found)
-
-
-def file_sha256(path: str | os.PathLike) -> str:
-    """SHA-256 of the file's bytes (hex)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,36 +129,25 @@ def _residuals(theta: jnp.ndarray, prior: MotorParams, experiments: Experiment, 
     return jax.vmap(one)(theta, experiments) - currents
 
 
-def residual_diagnostics(residuals: np.ndarray, segment_start: np.ndarray, sigma_hat: np.ndarray) -> dict:
-    """Per-motor model-mismatch statistics from residuals (B, M, 2) A.
+def residual_diagnostics(residuals: np.ndarray, segment_start: np.ndarray) -> dict:
+    """Per-motor whiteness of the residuals (B, M, 2) A, the verdict's test batched.
 
-    Returns ``resid_segment_ratio`` (largest per-segment residual RMS over
-    sigma_hat), ``resid_lag1`` (lag-1 autocorrelation of the residuals within
-    segments, both axes pooled) and ``mismatch`` (either beyond its limit:
-    white noise gives a ratio near 1 and a lag-1 correlation within a few
-    ``1/sqrt(pairs)``).
+    Each segment and current axis gets the Ljung-Box test of
+    ``verdict.ljung_box``; ``mismatch`` is the verdict's rule: some p-value
+    below ``WHITENESS_ALPHA`` divided by the number of tests (Bonferroni).
+    Returns ``resid_min_p`` (the smallest p-value) and ``mismatch``, each (B,).
     """
     r = np.asarray(residuals)
     starts = np.asarray(segment_start, dtype=bool)
     if starts.ndim == 2:
         starts = starts[0]
-    seg_id = np.cumsum(starts) - 1
-    num_segments = int(seg_id.max()) + 1
-    rms = np.stack(
-        [np.sqrt(np.mean(r[:, seg_id == s, :] ** 2, axis=(1, 2))) for s in range(num_segments)], axis=1
-    )
-    ratio = rms.max(axis=1) / np.asarray(sigma_hat)
-    pairs = ~starts[1:]  # consecutive samples of the same segment
-    a, b = r[:, :-1, :][:, pairs, :], r[:, 1:, :][:, pairs, :]
-    a = a - a.mean(axis=1, keepdims=True)
-    b = b - b.mean(axis=1, keepdims=True)
-    lag1 = np.sum(a * b, axis=(1, 2)) / np.sqrt(np.sum(a * a, axis=(1, 2)) * np.sum(b * b, axis=(1, 2)))
-    z = np.abs(lag1) * math.sqrt(2 * int(pairs.sum()))
-    return {
-        "resid_segment_ratio": ratio,
-        "resid_lag1": lag1,
-        "mismatch": (ratio > MISMATCH_RMS_RATIO) | (z > MISMATCH_LAG1_Z),
-    }
+    bounds = list(np.flatnonzero(starts)) + [starts.shape[0]]
+    p_values = [ljung_box(np.moveaxis(r[:, lo:hi, :], 1, -1))[1] for lo, hi in zip(bounds[:-1], bounds[1:])]
+    p = np.concatenate([np.reshape(pv, (r.shape[0], -1)) for pv in p_values], axis=1)  # (B, segments * 2)
+    tested = np.isfinite(p)
+    threshold = WHITENESS_ALPHA / np.maximum(tested.sum(axis=1), 1)
+    min_p = np.where(tested, p, np.inf).min(axis=1)
+    return {"resid_min_p": np.where(np.isfinite(min_p), min_p, np.nan), "mismatch": min_p < threshold}
 
 
 # --------------------------------------------------------------------------- one chunk
@@ -192,7 +170,7 @@ def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool
     fit_idx = [names.index(n) for n in cal.fit_names]
     theta = np.asarray(cal.estimate)[:, fit_idx]
     res = np.asarray(_residuals(jnp.asarray(theta), prior, experiment, jnp.asarray(currents), cal.fit_names))
-    diag = residual_diagnostics(res, np.asarray(experiment.segment_start), cal.sigma_hat)
+    diag = residual_diagnostics(res, np.asarray(experiment.segment_start))
     partial = not all(cal.identifiable)
     rows = []
     for k, it in enumerate(items):
@@ -218,8 +196,7 @@ def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool
             row[f"{n}_ci_low"] = float(one.ci95[i, 0])
             row[f"{n}_ci_high"] = float(one.ci95[i, 1])
             row[f"{n}_identifiable"] = bool(one.identifiable[i])
-        row["resid_segment_ratio"] = float(diag["resid_segment_ratio"][k])
-        row["resid_lag1"] = float(diag["resid_lag1"][k])
+        row["resid_min_p"] = float(diag["resid_min_p"][k])
         row["mismatch"] = bool(diag["mismatch"][k])
         rows.append(row)
     return rows

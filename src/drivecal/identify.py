@@ -98,6 +98,9 @@ class Identifiability:
             return None if not math.isfinite(x) else x
 
         return {
+            "names": list(self.names),
+            "fit_names": list(self.fit_names),
+            "num_residuals": self.num_residuals,
             "rank": self.rank,
             "num_params": len(self.names),
             "condition_number": finite(self.condition_number),
@@ -112,6 +115,37 @@ class Identifiability:
             "predicted_se": {n: finite(v) for n, v in zip(self.names, self.predicted_se)},
             "predicted_ci95": {n: finite(v) for n, v in zip(self.names, self.predicted_ci95)},
         }
+
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Identifiability:
+        """Rebuild from :meth:`to_dict` output (a saved result JSON); ``null`` becomes NaN."""
+        def num(x):
+            return math.nan if x is None else float(x)
+
+        sens = d.get("sensitivity") or {}
+        names = tuple(d.get("names") or sens)
+        dead = tuple(d.get("dead_params", ()))
+        confounded = tuple(d.get("confounded_params", ()))
+        fit_names = tuple(d.get("fit_names") or (n for n in names if n not in dead + confounded))
+        pse, pci = d.get("predicted_se") or {}, d.get("predicted_ci95") or {}
+        return cls(
+            names=names,
+            rank=int(d["rank"]),
+            condition_number=num(d.get("condition_number")),
+            identifiable=bool(d["identifiable"]),
+            weak_params=tuple(d.get("weak_params", ())),
+            dead_params=dead,
+            confounded_params=confounded,
+            reasons=dict(d.get("reasons", {})),
+            singular_values=tuple(float(s) for s in d.get("singular_values", ())),
+            sensitivity=tuple(num(sens.get(n)) for n in names),
+            fit_names=fit_names,
+            noise_sigma=num(d.get("noise_sigma")),
+            num_residuals=int(d.get("num_residuals", 0)),
+            predicted_se=tuple(num(pse.get(n)) for n in names),
+            predicted_ci95=tuple(num(pci.get(n)) for n in names),
+        )
 
 
 def _jaxterity_report(jacobian: np.ndarray, names: tuple[str, ...]):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import matplotlib
 
@@ -121,5 +121,96 @@ def identifiability_figure(reports: Mapping[str, Identifiability]):
     ax_p.grid(alpha=0.3, axis="y", which="both")
     ax_p.legend(fontsize=8)
     fig.suptitle("Identifiability before fitting")
+    fig.tight_layout()
+    return fig
+
+
+def _segment_arrays(seg: Mapping) -> dict[str, np.ndarray]:
+    return {k: np.asarray(seg[k], dtype=float) for k in ("t", "v_d", "v_q", "i_d", "i_q", "i_d_pred", "i_q_pred")}
+
+
+def currents_figure(segments: Sequence[Mapping], title: str = ""):
+    """Per segment: applied voltages (top), measured currents (dots) and the fit's prediction (lines, bottom).
+
+    Args:
+        segments: the result JSON's ``segments`` section (``record.segment_traces``):
+            per segment ``name``, ``locked``, ``t`` (s), ``v_d``, ``v_q`` (V),
+            ``i_d``, ``i_q`` measured and ``i_d_pred``, ``i_q_pred`` predicted (A).
+        title: appended to the figure title.
+    """
+    n = len(segments)
+    fig, axes = plt.subplots(2, n, figsize=(4.2 * n, 5.2), squeeze=False, sharex="col")
+    for j, seg in enumerate(segments):
+        a = _segment_arrays(seg)
+        t_ms = a["t"] * 1e3
+        ax_v, ax_i = axes[0, j], axes[1, j]
+        ax_v.plot(t_ms, a["v_d"], color="C0", label="v_d")
+        ax_v.plot(t_ms, a["v_q"], color="C3", label="v_q")
+        ax_v.set_title(f"{seg['name']} ({'locked' if seg['locked'] else 'free'})", fontsize=10)
+        ax_i.plot(t_ms, a["i_d"], ".", ms=1.5, color="C0", alpha=0.35)
+        ax_i.plot(t_ms, a["i_q"], ".", ms=1.5, color="C3", alpha=0.35)
+        ax_i.plot(t_ms, a["i_d_pred"], color="k", lw=1.2, label="predicted (fit)")
+        ax_i.plot(t_ms, a["i_q_pred"], color="k", lw=1.2)
+        ax_i.plot([], [], ".", color="C0", label="i_d measured")
+        ax_i.plot([], [], ".", color="C3", label="i_q measured")
+        ax_i.set_xlabel("time [ms]")
+        for ax in (ax_v, ax_i):
+            ax.grid(alpha=0.3)
+    axes[0, 0].set_ylabel("voltage [V]")
+    axes[1, 0].set_ylabel("current [A]")
+    axes[0, 0].legend(fontsize=8)
+    axes[1, 0].legend(fontsize=8, markerscale=4)
+    fig.suptitle(f"Excitation, measured and predicted currents{': ' + title if title else ''}")
+    fig.tight_layout()
+    return fig
+
+
+def residuals_figure(segments: Sequence[Mapping], sigma_hat: float | None = None):
+    """Residuals ``measured - predicted`` (A) per segment and axis, with the +-1.96 sigma_hat band.
+
+    Args:
+        segments: the result JSON's ``segments`` section (see :func:`currents_figure`).
+        sigma_hat: residual standard deviation of the fit (A), for the band.
+    """
+    n = len(segments)
+    fig, axes = plt.subplots(2, n, figsize=(4.2 * n, 4.6), squeeze=False, sharex="col", sharey="row")
+    for j, seg in enumerate(segments):
+        a = _segment_arrays(seg)
+        t_ms = a["t"] * 1e3
+        for k, (axis, color) in enumerate((("i_d", "C0"), ("i_q", "C3"))):
+            r = a[axis] - a[axis + "_pred"]
+            ax = axes[k, j]
+            ax.plot(t_ms, r * 1e3, ".", ms=1.5, color=color, alpha=0.6)
+            if sigma_hat is not None:
+                for sgn in (-1, 1):
+                    ax.axhline(sgn * 1.96 * sigma_hat * 1e3, color="k", lw=0.8, ls="--")
+            ax.axhline(0.0, color="k", lw=0.6)
+            ax.set_title(f"{seg['name']}: {axis}, RMS {np.sqrt(np.mean(r**2)) * 1e3:.3g} mA", fontsize=9)
+            ax.grid(alpha=0.3)
+        axes[1, j].set_xlabel("time [ms]")
+    axes[0, 0].set_ylabel("i_d residual [mA]")
+    axes[1, 0].set_ylabel("i_q residual [mA]")
+    fig.suptitle("Residuals (measured - predicted)" + (", dashed: +-1.96 sigma_hat" if sigma_hat else ""))
+    fig.tight_layout()
+    return fig
+
+
+def correlation_figure(calibration: Calibration):
+    """Heat-map of the correlation matrix of the fitted parameters, values written in each cell."""
+    names = calibration.fit_names
+    corr = np.asarray(calibration.correlation)
+    n = len(names)
+    fig, ax = plt.subplots(figsize=(1.2 * n + 2.4, 1.1 * n + 1.4))
+    im = ax.imshow(corr, vmin=-1.0, vmax=1.0, cmap="RdBu_r")
+    for i in range(n):
+        for j in range(n):
+            ax.text(j, i, f"{corr[i, j]:+.2f}", ha="center", va="center", fontsize=9,
+                    color="white" if abs(corr[i, j]) > 0.6 else "black")
+    ax.set_xticks(range(n))
+    ax.set_xticklabels(names)
+    ax.set_yticks(range(n))
+    ax.set_yticklabels(names)
+    fig.colorbar(im, ax=ax, label="correlation [-]")
+    ax.set_title("Parameter correlation")
     fig.tight_layout()
     return fig
