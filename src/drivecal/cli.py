@@ -536,6 +536,31 @@ def _print_gains(result, console: Console, source: str) -> None:
     for w in result.warnings:
         console.print(f"[yellow]warning[/yellow]: {escape(w)}")
 
+@cli.command("fleet-report")
+@click.argument("results", metavar="RESULTS.parquet", type=click.Path(dir_okay=False))
+@click.option("--html", "html_out", required=True, type=click.Path(dir_okay=False),
+              help="Write the self-contained HTML fleet report (histograms, outliers, trends) here.")
+def fleet_report(results, html_out):
+    """Summarise a `drivecal batch` table: counts, outliers, failures, histograms and trends.
+
+    The page lists the outliers with their robust z-scores (median/MAD of the
+    batch), the motors that failed with their reasons, and plots each
+    parameter's distribution and its trend along the serial order.
+    """
+    from pathlib import Path
+
+    from drivecal.fleet_report import write_fleet_report
+
+    target = Path(html_out)
+    if target.is_dir() or not target.parent.is_dir():
+        raise drivecal.DrivecalError(f"--html {target}: not a file in an existing directory; "
+                                     "give a path like out/fleet.html.")
+    table = write_fleet_report(results, target)
+    outliers = table.loc[table["outlier"].fillna(False).astype(bool), "serial"].astype(str).tolist()
+    click.echo(f"wrote {target}: {len(table)} motors, {len(outliers)} outlier(s)"
+               + (": " + ", ".join(outliers) if outliers else ""))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning bad input into one line and exit status 2."""
     try:

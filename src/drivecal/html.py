@@ -32,7 +32,7 @@ from .report import atomic_path
 #: Resolution of the embedded figures (dots per inch); fixed for byte-identical PNGs.
 FIG_DPI = 80
 
-_CSS = """
+CSS = """
 body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;margin:1.5em auto;max-width:1250px;color:#222;
      padding:0 1em;line-height:1.4}
 h1{margin-bottom:.1em} .stamp{color:#666;font-size:.9em;margin-top:0}
@@ -236,7 +236,7 @@ def render_html(result: Mapping[str, Any], *, generated: str | None = None) -> s
     return (
         "<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'>"
         "<meta name='viewport' content='width=device-width, initial-scale=1'>"
-        f"<title>drivecal calibration report</title><style>{_CSS}</style></head><body>"
+        f"<title>drivecal calibration report</title><style>{CSS}</style></head><body>"
         "<h1>drivecal calibration report</h1>"
         f'<p class="stamp">generated <time id="generated">{_e(stamp)}</time></p>'
         f"{overview}{extra}{sections}</body></html>\n"

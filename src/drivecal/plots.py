@@ -214,3 +214,59 @@ def correlation_figure(calibration: Calibration):
     ax.set_title("Parameter correlation")
     fig.tight_layout()
     return fig
+
+
+def fleet_histograms(table, names=None):
+    """Histogram of each estimate over a fleet, with the median, the ±z band and the outliers marked.
+
+    Args:
+        table: the ``drivecal batch`` results (pandas DataFrame).
+        names: parameters to show (default: those present of R, Ld, Lq, lambda_m).
+    """
+    import matplotlib.pyplot as plt
+
+    from .fleet import DEFAULT_OUTLIER_Z
+    from .motor import ESTIMATED, UNITS
+
+    names = [n for n in (names or ESTIMATED) if n in table]
+    fig, axes = plt.subplots(1, max(len(names), 1), figsize=(3.6 * max(len(names), 1), 3.0), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        values = table[name].astype(float)
+        outlier = table.get("outlier_params", "").astype(str).str.contains(rf"\b{name}\b", regex=True)
+        ok = values[~outlier].dropna()
+        ax.hist(ok, bins=40, color="C0", alpha=0.8, label="motors")
+        if outlier.any():
+            for v in values[outlier]:
+                ax.axvline(v, color="C3", lw=1.2)
+            ax.plot([], [], color="C3", label="outlier")
+        z = table.get(f"z_{name}")
+        if z is not None and z.notna().sum() >= 3:
+            centre = float(np.nanmedian(values[z.notna()]))
+            scale = float(np.nanmedian(np.abs(values[z.notna()] - centre))) * 1.4826
+            ax.axvspan(centre - DEFAULT_OUTLIER_Z * scale, centre + DEFAULT_OUTLIER_Z * scale, color="C2", alpha=0.12,
+                       label=f"median ± {DEFAULT_OUTLIER_Z:g} robust SD")
+        ax.set_xlabel(f"{name} [{UNITS[name]}]")
+        ax.set_ylabel("motors")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def fleet_trends(table, names=None):
+    """Each estimate against the production order (serial), outliers in red."""
+    import matplotlib.pyplot as plt
+
+    from .motor import ESTIMATED, UNITS
+
+    names = [n for n in (names or ESTIMATED) if n in table]
+    fig, axes = plt.subplots(len(names), 1, figsize=(10, 1.9 * len(names)), sharex=True, squeeze=False)
+    order = np.arange(len(table))
+    for ax, name in zip(axes[:, 0], names):
+        values = table[name].astype(float).to_numpy()
+        outlier = table.get("outlier_params", "").astype(str).str.contains(rf"\b{name}\b", regex=True).to_numpy()
+        ax.plot(order[~outlier], values[~outlier], ".", ms=2, color="C0")
+        ax.plot(order[outlier], values[outlier], "o", ms=4, color="C3")
+        ax.set_ylabel(f"{name}\n[{UNITS[name]}]")
+    axes[-1, 0].set_xlabel("motor, in serial order")
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,149 @@
+"""Fleet calibration: planted outliers, corrupt files, kill-and-resume, a dask cluster."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import drivecal as dc
+from drivecal import fleet
+from drivecal.cli import main
+
+MOTOR = dc.load_motor(None)
+DEMAGNETISED = {"lambda_m": 0.85}
+SHORTED_TURN = {"R": 0.85, "Ld": 0.85, "Lq": 0.85}
+
+
+@pytest.fixture(scope="module")
+def fleet_500(tmp_path_factory):
+    """500 motors (2 % spread) with 5 planted faults, calibrated in-process."""
+    root = tmp_path_factory.mktemp("fleet500")
+    planted = {17: DEMAGNETISED, 123: SHORTED_TURN, 250: DEMAGNETISED, 333: SHORTED_TURN, 480: DEMAGNETISED}
+    truth = fleet.synthetic_fleet(root / "in", 500, outliers=planted, seed=5)
+    summary = fleet.run_batch([root / "in"], root / "results.parquet", MOTOR, chunk=256, workers=1)
+    return truth, summary, pd.read_parquet(root / "results.parquet")
+
+
+@pytest.mark.slow
+def test_planted_outliers_are_found_exactly(fleet_500):
+    truth, summary, table = fleet_500
+    assert summary.total == 500 and summary.calibrated == 500 and summary.failed == 0
+    planted = set(truth.loc[truth["planted_outlier"], "serial"])
+    assert set(summary.outliers) == planted
+    flagged = table.set_index("serial")["outlier_params"]
+    for serial in planted:
+        faults = set(flagged[serial].split(", "))
+        assert faults in ({"lambda_m"}, {"R", "Ld", "Lq"}), (serial, faults)
+
+
+@pytest.mark.slow
+def test_fleet_intervals_cover_the_truth(fleet_500):
+    """2000 intervals (500 motors x 4 parameters): coverage 95 % within 4 binomial SDs."""
+    truth, _, table = fleet_500
+    merged = table.merge(truth, on="serial", suffixes=("", "_true"))
+    inside = np.concatenate([
+        ((merged[f"{n}_ci_low"] <= merged[f"{n}_true"]) & (merged[f"{n}_true"] <= merged[f"{n}_ci_high"])).to_numpy()
+        for n in dc.ESTIMATED
+    ])
+    assert abs(inside.mean() - 0.95) < 4 * np.sqrt(0.95 * 0.05 / inside.size), inside.mean()
+    assert merged["mismatch"].mean() < 0.01  # the whiteness test at family-wise 1e-3
+
+
+def test_corrupt_files_are_recorded_and_the_rest_calibrated(tmp_path, capsys):
+    truth = fleet.synthetic_fleet(tmp_path / "in", 13, seed=2)
+    good = pd.read_parquet(tmp_path / "in" / "SN000000.parquet").drop(columns=["serial"])
+    good.assign(i_d=np.where(np.arange(len(good)) == 40, np.nan, good["i_d"])).to_csv(tmp_path / "in" / "nan.csv",
+                                                                                      index=False)
+    good.drop(columns=["v_q"]).to_parquet(tmp_path / "in" / "novq.parquet")
+    (tmp_path / "in" / "garbage.mat").write_bytes(b"not a mat file at all")
+    out = tmp_path / "results.parquet"
+    with pytest.raises(SystemExit) as info:
+        main(["batch", str(tmp_path / "in"), "--out", str(out), "--chunk", "16", "--workers", "1"])
+    assert info.value.code == 1
+    assert "completed with failures" in capsys.readouterr().out
+    table = pd.read_parquet(out).set_index("serial")
+    assert len(table) == 16 and table.index.is_unique
+    assert (table.loc[truth["serial"], "status"] == "calibrated").all()
+    reasons = table.loc[["nan", "novq", "garbage"], "reason"]
+    assert "column 'i_d' has a missing value in data row 41" in reasons["nan"]
+    assert "missing column 'v_q'" in reasons["novq"]
+    assert "cannot be read as a mat bench file" in reasons["garbage"]
+    assert (table.loc[["nan", "novq", "garbage"], "status"] == "invalid file").all()
+    assert not fleet.parts_dir(out).exists()
+
+
+def _batch_process(inputs: Path, out: Path, *extra: str) -> subprocess.Popen:
+    exe = Path(sys.executable).with_name("drivecal")
+    return subprocess.Popen([str(exe), "batch", str(inputs), "--out", str(out), "--chunk", "4", "--workers", "1",
+                             *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.mark.slow
+def test_killed_run_resumes_without_losing_or_repeating_a_motor(tmp_path):
+    fleet.synthetic_fleet(tmp_path / "in", 96, seed=3)
+    out = tmp_path / "killed.parquet"
+    proc = _batch_process(tmp_path / "in", out)
+    parts = fleet.parts_dir(out)
+    deadline = time.monotonic() + 300
+    while not (parts.is_dir() and len(list(parts.glob("part-*.parquet"))) >= 2):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    written = len(list(parts.glob("part-*.parquet")))
+    assert not out.exists() and 2 <= written < 24  # killed mid-run
+
+    resumed = _batch_process(tmp_path / "in", out, "--resume")
+    _, err = resumed.communicate(timeout=600)
+    assert resumed.returncode == 0, err
+    whole = _batch_process(tmp_path / "in", tmp_path / "whole.parquet")
+    _, err = whole.communicate(timeout=600)
+    assert whole.returncode == 0, err
+
+    a = pd.read_parquet(out).sort_values("serial").reset_index(drop=True)
+    b = pd.read_parquet(tmp_path / "whole.parquet").sort_values("serial").reset_index(drop=True)
+    assert a["serial"].is_unique and len(a) == 96
+    assert a["serial"].tolist() == b["serial"].tolist()
+    numeric = [c for c in a.columns if a[c].dtype.kind == "f"]
+    np.testing.assert_allclose(a[numeric].to_numpy(), b[numeric].to_numpy(), rtol=1e-10, equal_nan=True)
+    assert (a["status"] == b["status"]).all()
+
+
+@pytest.mark.slow
+def test_dask_cluster_gives_the_same_table(tmp_path):
+    from distributed import LocalCluster
+
+    fleet.synthetic_fleet(tmp_path / "in", 24, seed=4)
+    local = fleet.run_batch([tmp_path / "in"], tmp_path / "local.parquet", MOTOR, chunk=8, workers=1)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        remote = fleet.run_batch([tmp_path / "in"], tmp_path / "dask.parquet", MOTOR, chunk=8,
+                                 scheduler=cluster.scheduler_address)
+    assert local.total == remote.total == 24
+    a = pd.read_parquet(tmp_path / "local.parquet")
+    b = pd.read_parquet(tmp_path / "dask.parquet")
+    assert a["serial"].tolist() == b["serial"].tolist()
+    for name in dc.ESTIMATED:
+        np.testing.assert_allclose(a[name], b[name], rtol=1e-10)
+
+
+def test_existing_results_need_resume(tmp_path, capsys):
+    fleet.synthetic_fleet(tmp_path / "in", 1, seed=1)
+    out = tmp_path / "r.parquet"
+    out.write_bytes(b"old")
+    with pytest.raises(SystemExit) as info:
+        main(["batch", str(tmp_path / "in"), "--out", str(out)])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert "results of an earlier run exist; pass --resume" in err and err.count("\n") == 1
+    with pytest.raises(SystemExit):
+        main(["batch", str(tmp_path / "nothing-here"), "--out", str(tmp_path / "x.parquet")])
+    assert "no bench files" in capsys.readouterr().err
