@@ -32,7 +32,8 @@ def load_results(path: str | os.PathLike) -> pd.DataFrame:
     try:
         table = pd.read_parquet(path)
     except Exception as exc:
-        raise DrivecalError(f"{path}: not a Parquet table ({exc}); give the file written by `drivecal batch`.") from None
+        raise DrivecalError(f"{path}: not a Parquet table ({exc}); "
+                            "give the file written by `drivecal batch`.") from None
     missing = [c for c in ("serial", "file", "status") if c not in table]
     if missing:
         raise DrivecalError(f"{path}: not a drivecal batch table (no column {', '.join(missing)}).")
