@@ -1,0 +1,140 @@
+"""Fleet benchmark: `drivecal batch` end to end on synthetic production runs.
+
+For 10, 100, 1 000 and 10 000 motors of the default plan (one Parquet bench
+file each, 2 % manufacturing spread, 20 mA noise, measured speed), runs
+`drivecal batch DIR --out ... --json` in a fresh process, in-process
+(`--workers 1`) and on a 2-worker dask LocalCluster (`--workers 2`), and
+records wall time, motors/s and the peak resident memory of the largest
+process (chunking must keep it flat as the count grows). Then runs the same
+100-motor batch twice with an empty persistent compilation cache to show what
+the cache saves on the second invocation.
+
+Everything is in fresh processes, so the times include start-up and
+compilation; that is what a factory sees. Prints a table and writes
+benchmarks/results/bench_fleet.json.
+
+    .venv/bin/python benchmarks/bench_fleet.py [--counts 10 100 1000 10000] [--chunk 256]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+RESULTS = Path(__file__).parent / "results" / "bench_fleet.json"
+DRIVECAL = Path(sys.executable).with_name("drivecal")
+
+
+def _generate(root: Path, count: int) -> Path:
+    from drivecal import fleet
+
+    directory = root / f"fleet_{count}"
+    if not directory.exists():
+        fleet.synthetic_fleet(directory, count, seed=count)
+    return directory
+
+
+def _run_batch(directory: Path, out: Path, workers: int, chunk: int, env: dict | None = None) -> dict:
+    """One `drivecal batch` in a fresh process: wall time and motors/s."""
+    cmd = [str(DRIVECAL), "batch", str(directory), "--out", str(out), "--chunk", str(chunk),
+           "--workers", str(workers), "--json"]
+    start = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, **(env or {})})
+    stdout, stderr = proc.communicate()
+    wall = time.perf_counter() - start
+    if proc.returncode not in (0, 1):
+        raise RuntimeError(f"{cmd} failed: {stderr[-2000:]}")
+    summary = json.loads(stdout)
+    return {"wall_s": wall, "motors": summary["total"], "motors_per_s": summary["total"] / wall}
+
+
+def _peak_rss_of(directory: Path, out: Path, workers: int, chunk: int) -> dict:
+    """Run the batch in a child Python that reports its own children's peak RSS (isolated from earlier runs)."""
+    code = (
+        "import json, resource, sys, time, subprocess, os\n"
+        f"cmd = {[str(DRIVECAL), 'batch', str(directory), '--out', str(out), '--chunk', str(chunk), '--workers', str(workers), '--json']!r}\n"  # noqa: E501
+        "t = time.perf_counter(); p = subprocess.run(cmd, capture_output=True, text=True)\n"
+        "wall = time.perf_counter() - t\n"
+        "if p.returncode not in (0, 1): sys.exit(p.stderr[-2000:])\n"
+        "s = json.loads(p.stdout)\n"
+        "print(json.dumps({'wall_s': wall, 'motors': s['total'], 'failed': s['failed'],"
+        " 'peak_rss_mib': resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(proc.stderr[-3000:] or proc.stdout[-3000:])
+    row = json.loads(proc.stdout)
+    row["motors_per_s"] = row["motors"] / row["wall_s"]
+    return row
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--counts", type=int, nargs="+", default=[10, 100, 1000, 10000])
+    parser.add_argument("--chunk", type=int, default=256)
+    parser.add_argument("--workdir", type=Path, default=None, help="keep generated fleets here (default: a temp dir)")
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    args = parser.parse_args()
+
+    import drivecal
+
+    root = args.workdir or Path(tempfile.mkdtemp(prefix="drivecal-fleet-bench-"))
+    root.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for count in args.counts:
+        t = time.perf_counter()
+        directory = _generate(root, count)
+        generated = time.perf_counter() - t
+        for workers in (1, 2):
+            out = root / f"results_{count}_w{workers}.parquet"
+            for stale in (out, out.with_name(out.name + ".parts")):
+                subprocess.run(["rm", "-rf", str(stale)], check=True)
+            row = _peak_rss_of(directory, out, workers, args.chunk)
+            row.update(count=count, workers=workers, generate_s=generated)
+            rows.append(row)
+            print(f"{count:>6} motors, {workers} worker(s): {row['wall_s']:8.1f} s  {row['motors_per_s']:8.1f} motors/s"
+                  f"  peak RSS {row['peak_rss_mib']:7.0f} MiB", flush=True)
+
+    # The persistent compilation cache: the same batch twice, starting from an empty cache.
+    cache_rows = []
+    directory = _generate(root, 100)
+    with tempfile.TemporaryDirectory(prefix="drivecal-jax-cache-") as cache:
+        for label, env in (("cache off", {"DRIVECAL_JAX_CACHE": "0"}),
+                           ("first, empty cache", {"DRIVECAL_JAX_CACHE_DIR": cache}),
+                           ("second, warm cache", {"DRIVECAL_JAX_CACHE_DIR": cache})):
+            out = root / "results_cache.parquet"
+            subprocess.run(["rm", "-rf", str(out), str(out) + ".parts"], check=True)
+            r = _run_batch(directory, out, 1, args.chunk, env)
+            cache_rows.append({"run": label, "wall_s": r["wall_s"]})
+            print(f"100 motors, {label:>20}: {r['wall_s']:6.1f} s", flush=True)
+
+    print()
+    print(f"{'motors':>8} {'workers':>8} {'wall [s]':>10} {'motors/s':>10} {'peak RSS [MiB]':>15}")
+    for r in rows:
+        print(f"{r['count']:>8} {r['workers']:>8} {r['wall_s']:>10.1f} {r['motors_per_s']:>10.1f} "
+              f"{r['peak_rss_mib']:>15.0f}")
+    print()
+    for r in cache_rows:
+        print(f"  100 motors, {r['run']:>20}: {r['wall_s']:.1f} s")
+    payload = {
+        "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "drivecal": drivecal.__version__},
+        "chunk": args.chunk,
+        "runs": rows,
+        "compile_cache": cache_rows,
+        "note": "fresh process per run: times include start-up, file reading and compilation",
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(payload, indent=2) + "\n")
+    print(f"\nwrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
