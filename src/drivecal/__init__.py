@@ -56,6 +56,7 @@ from .plan import Plan, Segment, default_plan, locked_q_step_plan  # noqa: E402
 from .config import MotorFile, load_motor, load_plan, motor_from_dict, plan_from_dict  # noqa: E402
 from .design import DesignReport, assess_design  # noqa: E402
 from . import fleet, waveforms  # noqa: E402
+from .saturation import SaturationCheck, check_saturation  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -109,5 +110,7 @@ __all__ = [
     "plan_from_dict",
     "waveforms",
     "fleet",
+    "SaturationCheck",
+    "check_saturation",
     "__version__",
 ]

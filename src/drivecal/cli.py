@@ -231,6 +231,8 @@ def fit_command(bench_path, motor_path, measured_speed, noise, out_dir, as_json)
                                         motor_file=motor_path)
         payload["measured_speed"] = bool(measured_speed and bench.has_measured_speed)
         payload["drivecal_version"] = drivecal.__version__
+        saturation = drivecal.check_saturation(bench, prior)
+        payload["saturation"] = saturation.to_dict() if saturation.tested else None
         if out_dir is not None:
             written = _write_fit_outputs(cal, payload, out_dir)
     if as_json:
@@ -249,6 +251,9 @@ def fit_command(bench_path, motor_path, measured_speed, noise, out_dir, as_json)
     console.print(f"verdict: [{colour}]{escape(verdict['headline'])}[/{colour}]")
     for line in verdict.get("details", []):
         console.print(f"  {escape(line)}")
+    for line in (payload["saturation"] or {}).get("findings", []):
+        colour = "red" if "saturates" in line else "green"
+        console.print(f"saturation check: [{colour}]{escape(line)}[/{colour}]")
     if out_dir is not None:
         console.print(f"wrote {len(written)} files to {out_dir}/: " + ", ".join(p.name for p in written))
 
