@@ -313,3 +313,69 @@ def load_motor(path: str | Path | None) -> MotorFile:
     if path is None:
         return MotorFile(motor=DEFAULT_MOTOR)
     return motor_from_dict(_read_toml(path), str(path))
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value))
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    raise TypeError(f"cannot write {type(value).__name__} to TOML")
+
+
+def plan_toml(plan: Plan, waveforms_spec: dict[tuple[str, str], dict] | None = None, header: str = "") -> str:
+    """A plan as a plan file (the schema :func:`load_plan` reads), SI numbers.
+
+    Args:
+        plan: the plan; constant voltages are written as numbers (V).
+        waveforms_spec: per ``(segment name, "v_d" | "v_q")``, the waveform
+            table to write instead of the samples (e.g. ``{"kind": "chirp",
+            ...}`` in SI units); a per-sample voltage without one is written as
+            ``kind = "samples"`` with its values.
+        header: comment lines put on top (without the ``#``).
+    """
+    specs = waveforms_spec or {}
+    lines = [f"# {line}".rstrip() for line in header.splitlines()]
+    lines += [
+        f"sample_rate = {_toml_value(float(plan.sample_rate))}    # Hz",
+        f"v_dc = {_toml_value(float(plan.v_dc))}    # V",
+        f"current_limit = {_toml_value(float(plan.current_limit))}    # A",
+    ]
+    if plan.max_speed is not None:
+        lines.append(f"max_speed = {_toml_value(float(plan.max_speed))}    # rad/s")
+    for seg in plan.segments:
+        lines += ["", "[[segment]]", f"name = {_toml_value(seg.name)}",
+                  f"duration = {_toml_value(float(seg.duration))}    # s", f"locked = {_toml_value(bool(seg.locked))}"]
+        tables = []
+        for axis in ("v_d", "v_q"):
+            value = getattr(seg, axis)
+            if (seg.name, axis) in specs:
+                tables.append((axis, specs[(seg.name, axis)]))
+            elif np.ndim(value) == 0:
+                lines.append(f"{axis} = {_toml_value(float(value))}    # V")
+            else:
+                tables.append((axis, {"kind": "samples", "values": [float(v) for v in value]}))
+        for axis, table in tables:
+            lines.append(f"[segment.{axis}]")
+            lines += [f"{k} = {_toml_value(v)}" for k, v in table.items()]
+    return "\n".join(lines) + "\n"
+
+
+def write_plan(path: str | Path, plan: Plan, waveforms_spec: dict[tuple[str, str], dict] | None = None,
+               header: str = "") -> Path:
+    """Write :func:`plan_toml` to ``path`` atomically (whole or not at all); the written file is re-read and checked."""
+    from .report import atomic_path
+
+    text = plan_toml(plan, waveforms_spec, header)
+    plan_from_dict(tomllib.loads(text), str(path), Path(path).parent)  # what we write must load
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return Path(path)
