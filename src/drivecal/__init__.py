@@ -51,7 +51,7 @@ from .html import write_html_report  # noqa: E402
 from .record import build_result, load_result  # noqa: E402
 from .forward import Experiment, predict_currents, simulate_states  # noqa: E402
 from .identify import Identifiability, assess_identifiability, check_requested, sensitivity_jacobian  # noqa: E402
-from .motor import DEFAULT_MOTOR, ESTIMATED, FIXED, UNITS, MotorParams, dq_derivatives  # noqa: E402
+from .motor import DEFAULT_MOTOR, ESTIMABLE, ESTIMATED, FIXED, NUISANCE, UNITS, MotorParams, dq_derivatives  # noqa: E402
 from .plan import Plan, Segment, default_plan, locked_q_step_plan  # noqa: E402
 from .config import MotorFile, load_motor, load_plan, motor_from_dict, plan_from_dict  # noqa: E402
 from .design import DesignReport, assess_design  # noqa: E402
@@ -68,6 +68,8 @@ __all__ = [
     "DataError",
     "DrivecalError",
     "ESTIMATED",
+    "ESTIMABLE",
+    "NUISANCE",
     "Experiment",
     "FIXED",
     "FitOptions",

@@ -17,7 +17,9 @@ import numpy as np
 
 from .data import BenchData, SegmentData
 from .errors import PlanError
-from .motor import MotorParams
+from .forward import delayed, sensor_offsets
+from .inverter import dead_time_error
+from .motor import MotorParams, resistance_at
 from .plan import Plan, Segment
 
 #: Engine tolerances: tight enough that the bench is exact to ~1e-9 A.
@@ -33,15 +35,35 @@ def _quiet_jaxonomy() -> None:
     logging.getLogger("jaxonomy").setLevel(logging.WARNING)
 
 
-def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float) -> tuple[np.ndarray, np.ndarray]:
-    """Run one segment on the engine; return sample times (s) and states (N, 4)."""
+def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float,
+                 delay_samples: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Run one segment on the engine; return sample times (s) and states (N, 4).
+
+    The bench effects of ``motor`` act as on a real bench: R at the segment's
+    winding temperature, the inverter's dead-time error fed back from the
+    block's currents and angle, the commands applied ``delay_samples`` late.
+    """
     from .export import pmsm_block
 
-    block = pmsm_block(motor, locked=bool(segment.locked), name="pmsm")
-    return run_held_voltages(block, segment.voltages(sample_rate), sample_rate, label=f"segment '{segment.name}'")
+    warm = motor
+    if segment.temperature is not None:
+        warm = motor.replace(R=float(resistance_at(motor, float(segment.temperature))))
+    block = pmsm_block(warm, locked=bool(segment.locked), name="pmsm")
+    error = None
+    if float(motor.v_dead) != 0.0:
+        import jax.numpy as jnp
+
+        pole_pairs, v_dead, i_dead = float(motor.pole_pairs), float(motor.v_dead), float(motor.i_dead)
+
+        def error(state):
+            return jnp.stack(dead_time_error(state[0], state[1], pole_pairs * state[3], v_dead, i_dead))
+
+    volts = delayed(segment.voltages(sample_rate), delay_samples)
+    return run_held_voltages(block, volts, sample_rate, label=f"segment '{segment.name}'", voltage_error=error)
 
 
-def run_held_voltages(block, voltages: np.ndarray, sample_rate: float, *, label: str = "segment"):
+def run_held_voltages(block, voltages: np.ndarray, sample_rate: float, *, label: str = "segment",
+                      voltage_error=None):
     """Drive a PMSM block on the engine with per-sample voltages held between samples.
 
     Args:
@@ -49,6 +71,10 @@ def run_held_voltages(block, voltages: np.ndarray, sample_rate: float, *, label:
         voltages: ``[v_d, v_q]`` (V), shape (N, 2); row k acts on ``[t_k, t_k+1)``.
         sample_rate: samples per second (Hz).
         label: names the run in the error message.
+        voltage_error: optional ``f(state) -> [e_d, e_q]`` (V) added to the
+            held voltage, fed back from the block's state (an inverter's dead
+            time, for instance); the block's state output does not depend on
+            its input, so the loop is not algebraic.
 
     Returns:
         Sample times ``t_k = k / sample_rate`` (s), shape (N,), and the state at
@@ -56,7 +82,7 @@ def run_held_voltages(block, voltages: np.ndarray, sample_rate: float, *, label:
     """
     import jax.numpy as jnp
     from jaxonomy import DiagramBuilder, SimulatorOptions, simulate
-    from jaxonomy.library import SourceBlock, ZeroOrderHold
+    from jaxonomy.library import Adder, FeedthroughBlock, SourceBlock, ZeroOrderHold
 
     _quiet_jaxonomy()
     volts = jnp.asarray(voltages)
@@ -73,7 +99,15 @@ def run_held_voltages(block, voltages: np.ndarray, sample_rate: float, *, label:
     hold = builder.add(ZeroOrderHold(dt, name="pwm_hold"))
     pmsm = builder.add(block)
     builder.connect(source.output_ports[0], hold.input_ports[0])
-    builder.connect(hold.output_ports[0], pmsm.input_ports[0])
+    if voltage_error is None:
+        builder.connect(hold.output_ports[0], pmsm.input_ports[0])
+    else:
+        error = builder.add(FeedthroughBlock(voltage_error, name="inverter_error"))
+        applied = builder.add(Adder(2, name="applied_voltage"))
+        builder.connect(pmsm.output_ports[0], error.input_ports[0])
+        builder.connect(hold.output_ports[0], applied.input_ports[0])
+        builder.connect(error.output_ports[0], applied.input_ports[1])
+        builder.connect(applied.output_ports[0], pmsm.input_ports[0])
     diagram = builder.build()
     context = diagram.create_context()
 
@@ -101,27 +135,40 @@ def run_held_voltages(block, voltages: np.ndarray, sample_rate: float, *, label:
     raise PlanError(f"{label}: the engine did not record every sample instant.")
 
 
-def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False) -> BenchData:
+def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
+                 delay_samples: int = 0) -> BenchData:
     """Noise-free bench data: the plan run on the Jaxonomy engine.
+
+    The bench effects set in ``motor`` are part of the truth: dead time
+    (``v_dead``), sensor offsets (``offset_*``, added to the recorded
+    currents), R at each segment's ``temperature`` (recorded too).
 
     Args:
         plan: the experiment (checked for feasibility first).
-        motor: the true machine.
-        record_speed: also record the mechanical speed ``w_m`` (rad/s).
+        motor: the true machine, with its inverter and sensors.
+        record_speed: also record the mechanical speed ``w_m`` (rad/s) and the
+            electrical angle ``theta_e`` (rad), as an encoder would.
+        delay_samples: the inverter's PWM/computation delay (samples); the
+            file records the commands, as a real inverter log does.
     """
     plan.check_feasible()
     _quiet_jaxonomy()
     segments = []
     for seg in plan.segments:
-        t, states = _run_segment(seg, motor, plan.sample_rate)
+        t, states = _run_segment(seg, motor, plan.sample_rate, delay_samples)
+        theta_e = float(motor.pole_pairs) * states[:, 3]
+        d_offset, q_offset = (np.asarray(o) for o in sensor_offsets(theta_e, motor))
+        n = t.shape[0]
         segments.append(
             SegmentData(
                 name=seg.name,
                 locked=seg.locked,
                 t=t,
                 voltages=seg.voltages(plan.sample_rate),
-                currents=states[:, :2].copy(),
+                currents=np.stack([states[:, 0] + d_offset, states[:, 1] + q_offset], axis=1),
                 w_m=states[:, 2].copy() if record_speed else None,
+                temperature=None if seg.temperature is None else np.full(n, float(seg.temperature)),
+                theta_e=theta_e.copy() if record_speed else None,
             )
         )
     return BenchData(segments=tuple(segments), sample_rate=plan.sample_rate, source="synthetic bench")

@@ -160,8 +160,10 @@ def simulate(plan_path, motor_path, noise, seed, record_speed, out_path):
     The plan runs on the Jaxonomy engine (its PMSM block and adaptive solver)
     with the motor of --motor, currents are sampled at the plan's sample rate
     and seeded Gaussian noise is added. The file has the bench-file columns
-    (segment, locked, t, v_d, v_q, i_d, i_q, w_m) and can be fitted with
-    `drivecal fit`.
+    (segment, locked, t, v_d, v_q, i_d, i_q, w_m; temperature when the plan
+    sets one) and can be fitted with `drivecal fit`. Bench effects set in the
+    motor file (v_dead, offsets, delay_samples, alpha_R with segment
+    temperatures) are part of the simulated truth.
     """
     from pathlib import Path
 
@@ -169,10 +171,11 @@ def simulate(plan_path, motor_path, noise, seed, record_speed, out_path):
     if out.suffix.lower() not in (".csv", ".parquet", ".mat"):
         raise drivecal.DrivecalError(f"--out {out}: unknown format '{out.suffix}'; use a .csv, .parquet or .mat name.")
     plan = drivecal.load_plan(plan_path)
-    motor = drivecal.load_motor(motor_path).motor
+    motor_file = drivecal.load_motor(motor_path)
     console = _console(False)
     with console.status(f"running {len(plan.segments)} segment(s) on the Jaxonomy engine..."):
-        bench = drivecal.engine_bench(plan, motor, record_speed=record_speed).add_noise(noise, seed)
+        bench = drivecal.engine_bench(plan, motor_file.motor, record_speed=record_speed,
+                                      delay_samples=motor_file.delay_samples).add_noise(noise, seed)
         bench.save(out)
     console.print(f"wrote {out}: {bench.num_samples} samples in {len(bench.segments)} segment(s) at "
                   f"{bench.sample_rate:g} Hz, noise {noise * 1e3:g} mA (seed {seed})")
@@ -205,28 +208,42 @@ def _fit_table(cal: drivecal.Calibration) -> Table:
 @click.option("--noise", type=_Positive(), default=None,
               help="The current sensor's noise standard deviation [A], if known: a sigma_hat well above it "
                    "is reported as model mismatch. Without it only the whiteness of the residuals is judged.")
+@click.option("--estimate", "estimate", default=None, metavar="NAMES",
+              help="Comma-separated parameters to estimate, replacing the motor file's 'estimate', e.g. "
+                   "R,Ld,Lq,lambda_m,v_dead,offset_d,offset_q (bench effects: v_dead, offset_d, offset_q, "
+                   "offset_a, offset_b, alpha_R).")
+@click.option("--delay", "delay_samples", type=click.IntRange(0, 100), default=None,
+              help="The inverter's PWM/computation delay [samples], replacing the motor file's 'delay_samples'.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
               help="Directory for report.json, report.html and the PNG figures (created if missing).")
 @click.option("--json", "as_json", is_flag=True, help="Print the result JSON on stdout instead of the table.")
-def fit_command(bench_path, motor_path, measured_speed, noise, out_dir, as_json):
+def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_samples, out_dir, as_json):
     """Calibrate R, Ld, Lq, lambda_m from a bench file (.csv, .parquet or .mat).
 
     \b
     The file holds one row per sample: segment, locked (0/1), t [s],
-    v_d, v_q [V], i_d, i_q [A], optional w_m [rad/s]; or phase columns
-    i_a, i_b, (i_c), v_a, v_b, (v_c) with theta_e or theta_m [rad].
+    v_d, v_q [V], i_d, i_q [A], optional w_m [rad/s] and temperature [degC];
+    or phase columns i_a, i_b, (i_c), v_a, v_b, (v_c) with theta_e or
+    theta_m [rad].
     The motor file's values are the starting point and the prior; a parameter
-    the recording cannot identify is held there and reported as such.
+    the recording cannot identify is held there and reported as such. Bench
+    effects (dead time, sensor offsets, temperature coefficient) are fitted
+    jointly when named in --estimate or the motor file's 'estimate'.
     """
     motor_file = drivecal.load_motor(motor_path)
+    if estimate is not None:
+        motor_file = motor_file.model_copy(update={"estimate": _estimate_names(estimate)})
+    if delay_samples is not None:
+        motor_file = motor_file.model_copy(update={"delay_samples": delay_samples})
     prior = motor_file.motor
     bench = drivecal.load_bench(bench_path, pole_pairs=float(prior.pole_pairs), nominal_R=float(prior.R))
-    experiment = bench.experiment(measured_speed=measured_speed)
+    experiment = bench.experiment(measured_speed=measured_speed, delay_samples=motor_file.delay_samples)
     if motor_file.estimate is not None:
         drivecal.check_requested(motor_file.names, experiment, bench_path)
     console = _console(as_json)
     with console.status("checking identifiability and fitting..."):
-        cal = drivecal.fit(bench, prior, names=motor_file.names, measured_speed=measured_speed)
+        cal = drivecal.fit(bench, prior, names=motor_file.names, measured_speed=measured_speed,
+                           delay_samples=motor_file.delay_samples)
         payload = drivecal.build_result(cal, bench, experiment=experiment, noise_sigma=noise, input_path=bench_path,
                                         motor_file=motor_path)
         payload["measured_speed"] = bool(measured_speed and bench.has_measured_speed)
@@ -256,6 +273,15 @@ def fit_command(bench_path, motor_path, measured_speed, noise, out_dir, as_json)
         console.print(f"saturation check: [{colour}]{escape(line)}[/{colour}]")
     if out_dir is not None:
         console.print(f"wrote {len(written)} files to {out_dir}/: " + ", ".join(p.name for p in written))
+
+
+def _estimate_names(text: str) -> tuple[str, ...]:
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    unknown = [n for n in names if n not in drivecal.ESTIMABLE]
+    if unknown or not names:
+        raise drivecal.DrivecalError(f"--estimate: unknown parameter(s) {', '.join(unknown) or '(none given)'}; "
+                                     f"choose from {', '.join(drivecal.ESTIMABLE)}.")
+    return names
 
 
 def _write_fit_outputs(cal, payload, out_dir):
@@ -300,7 +326,8 @@ def design(plan_path, motor_path, noise, as_json):
     motor_file = drivecal.load_motor(motor_path)
     if motor_file.estimate is not None:
         drivecal.check_requested(motor_file.names, drivecal.Experiment.from_plan(plan), plan_path)
-    report = drivecal.assess_design(plan, motor_file.motor, noise_sigma=noise, names=motor_file.names)
+    report = drivecal.assess_design(plan, motor_file.motor, noise_sigma=noise, names=motor_file.names,
+                                    delay_samples=motor_file.delay_samples)
     if as_json:
         click.echo(json.dumps(report.to_dict(), indent=2))
     else:

@@ -20,7 +20,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationEr
 
 from . import waveforms
 from .errors import DrivecalError
-from .motor import DEFAULT_MOTOR, ESTIMATED, MotorParams
+from .motor import DEFAULT_MOTOR, ESTIMABLE, ESTIMATED, MotorParams
 from .plan import Plan, Segment
 
 _PREFIXES = {"": 1.0, "k": 1e3, "M": 1e6, "m": 1e-3, "u": 1e-6, "µ": 1e-6, "μ": 1e-6, "n": 1e-9}
@@ -37,10 +37,13 @@ _UNITS = {
     "friction": ("N*m*s", "Nms", "N m s"),
     "speed": ("rad/s",),
     "torque": ("N*m", "Nm", "N m"),
+    "temperature": ("degC", "°C", "C"),
+    "temperature coefficient": ("1/K",),
 }
 _EXAMPLE = {"time": "10 ms", "frequency": "20 kHz", "voltage": "8 V", "current": "30 A", "resistance": "0.45 ohm",
             "inductance": "3.2 mH", "flux": "0.0533 Wb", "inertia": "1.2e-3 kg*m^2", "friction": "8e-5 N*m*s",
-            "speed": "300 rad/s", "torque": "0.1 N*m"}
+            "speed": "300 rad/s", "torque": "0.1 N*m", "temperature": "75 degC",
+            "temperature coefficient": "3.93e-3 1/K"}
 _NUMBER_UNIT = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$")
 
 
@@ -140,6 +143,7 @@ class SegmentSpec(_Strict):
     locked: bool
     v_d: Union[Volts, Waveform] = 0.0
     v_q: Union[Volts, Waveform] = 0.0
+    temperature: _q("temperature") | None = None
 
 
 class PlanSpec(_Strict):
@@ -159,28 +163,44 @@ class MotorSpec(_Strict):
     J: _q("inertia") = float(DEFAULT_MOTOR.J)
     B: _q("friction") = float(DEFAULT_MOTOR.B)
     T_load: _q("torque") = 0.0
-    estimate: list[Literal["R", "Ld", "Lq", "lambda_m"]] | None = None
+    v_dead: _q("voltage") = 0.0
+    i_dead: _q("current") = float(DEFAULT_MOTOR.i_dead)
+    offset_d: _q("current") = 0.0
+    offset_q: _q("current") = 0.0
+    offset_a: _q("current") = 0.0
+    offset_b: _q("current") = 0.0
+    alpha_R: _q("temperature coefficient") = float(DEFAULT_MOTOR.alpha_R)
+    T_ref: _q("temperature") = float(DEFAULT_MOTOR.T_ref)
+    delay_samples: int = Field(default=0, ge=0, le=100)
+    estimate: list[Literal["R", "Ld", "Lq", "lambda_m", "v_dead", "offset_d", "offset_q", "offset_a", "offset_b",
+                           "alpha_R"]] | None = None
 
 
 class MotorFile(BaseModel):
     """A loaded motor file: the nominal motor (the fit's prior) and what to estimate.
 
     Attributes:
-        motor: nominal values of all parameters, SI.
-        estimate: the parameters the user asks for, or None for "all four,
-            holding any the data cannot identify at the nominal value".
+        motor: nominal values of all parameters (bench effects included), SI.
+        estimate: the parameters the user asks for, or None for "R, Ld, Lq,
+            lambda_m, holding any the data cannot identify at the nominal
+            value". Bench effects (v_dead, offsets, alpha_R) are estimated
+            only when listed here.
+        delay_samples: the inverter's PWM/computation delay (samples).
         source: the file path, for messages.
     """
 
     model_config = ConfigDict(frozen=True, arbitrary_types_allowed=True)
     motor: MotorParams
     estimate: tuple[str, ...] | None = None
+    delay_samples: int = 0
     source: str = "default motor"
 
     @property
     def names(self) -> tuple[str, ...]:
         """The parameters to estimate, in drivecal's order."""
-        return tuple(n for n in ESTIMATED if self.estimate is None or n in self.estimate)
+        if self.estimate is None:
+            return ESTIMATED
+        return tuple(n for n in ESTIMABLE if n in self.estimate)
 
 
 def _location(loc: tuple) -> str:
@@ -277,7 +297,7 @@ def plan_from_dict(data: dict, source: str = "plan", base: Path | None = None) -
             )
         v_d = _axis(s.v_d, n, spec.sample_rate, base, f"{source}: segment[{i}].v_d")
         v_q = _axis(s.v_q, n, spec.sample_rate, base, f"{source}: segment[{i}].v_q")
-        segments.append(Segment(s.name, s.duration, s.locked, v_d=v_d, v_q=v_q))
+        segments.append(Segment(s.name, s.duration, s.locked, v_d=v_d, v_q=v_q, temperature=s.temperature))
     plan = Plan(tuple(segments), sample_rate=spec.sample_rate, v_dc=spec.v_dc, current_limit=spec.current_limit,
                 max_speed=spec.max_speed)
     try:
@@ -297,15 +317,20 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
         spec = MotorSpec.model_validate(data)
     except ValidationError as exc:
         raise _explain(exc, source, "motor", ", ".join(MotorSpec.model_fields)) from None
-    values = spec.model_dump(exclude={"estimate"})
+    values = spec.model_dump(exclude={"estimate", "delay_samples"})
+    signed = ("T_load", "offset_d", "offset_q", "offset_a", "offset_b", "T_ref")
     for name, value in values.items():
-        if not (value > 0 and math.isfinite(value)) and name != "T_load":
+        if not math.isfinite(value):
+            raise DrivecalError(f"{source}: '{name}' must be a finite number, got {value!r}.")
+        if name == "v_dead" and value < 0:
+            raise DrivecalError(f"{source}: 'v_dead' is a voltage magnitude and must be >= 0, got {value!r}.")
+        if not value > 0 and name not in signed + ("v_dead",):
             raise DrivecalError(f"{source}: '{name}' must be a positive number, got {value!r}.")
     motor = MotorParams(**{k: float(v) for k, v in values.items()})
     estimate = None if spec.estimate is None else tuple(spec.estimate)
     if estimate is not None and not estimate:
         raise DrivecalError(f"{source}: 'estimate' is empty; list at least one of R, Ld, Lq, lambda_m.")
-    return MotorFile(motor=motor, estimate=estimate, source=source)
+    return MotorFile(motor=motor, estimate=estimate, delay_samples=spec.delay_samples, source=source)
 
 
 def load_motor(path: str | Path | None) -> MotorFile:
@@ -354,6 +379,8 @@ def plan_toml(plan: Plan, waveforms_spec: dict[tuple[str, str], dict] | None = N
     for seg in plan.segments:
         lines += ["", "[[segment]]", f"name = {_toml_value(seg.name)}",
                   f"duration = {_toml_value(float(seg.duration))}    # s", f"locked = {_toml_value(bool(seg.locked))}"]
+        if seg.temperature is not None:
+            lines.append(f"temperature = {_toml_value(float(seg.temperature))}    # degC")
         tables = []
         for axis in ("v_d", "v_q"):
             value = getattr(seg, axis)

@@ -2,7 +2,8 @@
 
 Bench files (CSV, Parquet or MATLAB ``.mat``) hold one row per sample with the
 columns ``segment`` (name), ``locked`` (0/1), ``t`` (s), ``v_d``, ``v_q`` (V),
-``i_d``, ``i_q`` (A) and optionally ``w_m`` (rad/s, measured mechanical speed).
+``i_d``, ``i_q`` (A) and optionally ``w_m`` (rad/s, measured mechanical speed)
+and ``temperature`` (degC, winding temperature; R follows it).
 Instead of dq columns a file may hold phase quantities ``i_a``, ``i_b``
 (``i_c``), ``v_a``, ``v_b`` (``v_c``) (phase-to-neutral, A and V) with a rotor
 angle ``theta_e`` (electrical, rad) or ``theta_m`` (mechanical, rad); they are
@@ -52,6 +53,9 @@ class SegmentData:
         w_m: measured mechanical speed (rad/s), shape (N,), or None.
         at_rest: the segment starts from rest (zero currents and speed); when
             False the forward model starts from the first sample instead.
+        temperature: winding temperature (degC) per sample, shape (N,), or None.
+        theta_e: measured electrical rotor angle (rad) per sample, shape (N,),
+            of a phase bench file, or None.
     """
 
     name: str
@@ -61,6 +65,8 @@ class SegmentData:
     currents: np.ndarray
     w_m: np.ndarray | None = None
     at_rest: bool = True
+    temperature: np.ndarray | None = None
+    theta_e: np.ndarray | None = None
 
     @property
     def num_samples(self) -> int:
@@ -103,13 +109,15 @@ class BenchData:
         """Some free segment carries a measured speed ``w_m``."""
         return any(s.w_m is not None and not s.locked for s in self.segments)
 
-    def experiment(self, measured_speed: bool = True) -> Experiment:
+    def experiment(self, measured_speed: bool = True, delay_samples: int = 0) -> Experiment:
         """The applied voltages and rotor conditions, for the forward model.
 
         Args:
             measured_speed: on free segments with a measured ``w_m``, use it as
                 an input of the electrical equations (J and B then play no
                 part); when False the speed is simulated from J and B.
+            delay_samples: the inverter's PWM/computation delay (samples): the
+                recorded command k acts at sample k + delay_samples.
         """
         speeds = [
             s.w_m if (measured_speed and s.w_m is not None and not s.locked) else None for s in self.segments
@@ -120,6 +128,9 @@ class BenchData:
             1.0 / self.sample_rate,
             initial_states=[s.initial_state() for s in self.segments],
             speeds=speeds,
+            temperatures=[s.temperature for s in self.segments],
+            angles=[s.theta_e for s in self.segments],
+            delay_samples=delay_samples,
         )
 
     def with_currents(self, currents: np.ndarray) -> BenchData:
@@ -155,6 +166,11 @@ class BenchData:
             }
             if any(s.w_m is not None for s in self.segments):
                 cols["w_m"] = seg.w_m if seg.w_m is not None else np.zeros(seg.num_samples)
+            if any(s.theta_e is not None for s in self.segments):
+                cols["theta_e"] = seg.theta_e if seg.theta_e is not None else np.zeros(seg.num_samples)
+            if any(s.temperature is not None for s in self.segments):
+                cols["temperature"] = seg.temperature if seg.temperature is not None else np.full(seg.num_samples,
+                                                                                                  np.nan)
             frames.append(pd.DataFrame(cols))
         return pd.concat(frames, ignore_index=True)
 
@@ -274,6 +290,7 @@ def _phase_to_dq(frame: pd.DataFrame, source: str, pole_pairs: float) -> pd.Data
         )
     _check_finite(frame, source, [c for c in frame.columns if c[:2] in ("i_", "v_")] + ["theta_e", "theta_m"])
     out = frame.copy()
+    out["theta_e"] = theta_e
     out["i_d"], out["i_q"] = _clarke_park(frame, "i", theta_e)
     out["v_d"], out["v_q"] = _clarke_park(frame, "v", theta_e)
     return out
@@ -330,7 +347,8 @@ def bench_from_frame(
         if col not in frame:
             hint = " (or phase columns i_a, i_b, v_a, v_b with theta_e)" if col in ("i_d", "i_q", "v_d", "v_q") else ""
             raise DataError(f"{source}: missing column '{col}' ({meaning}){hint}; add it to the file.")
-    numeric = ["locked", "t", "v_d", "v_q", "i_d", "i_q"] + (["w_m"] if "w_m" in frame else [])
+    optional = [c for c in ("w_m", "theta_e") if c in frame]
+    numeric = ["locked", "t", "v_d", "v_q", "i_d", "i_q"] + optional
     _check_finite(frame, source, numeric)
     names = frame["segment"]
     blank = names.isna() | (names.astype(str).str.strip() == "")
@@ -394,7 +412,9 @@ def bench_from_frame(
         at_rest = bool(np.all(np.abs(currents[0]) <= 5.0 * noise))
         if w_m is not None and not locked:
             at_rest = at_rest and abs(w_m[0]) <= max(5.0 * _noise_level(w_m), 1e-6)
-        segments.append(SegmentData(name, locked, t - t[0], voltages, currents, w_m, at_rest))
+        temperature = _segment_temperature(rows, where) if "temperature" in frame else None
+        theta_e = rows["theta_e"].to_numpy(float) if "theta_e" in frame else None
+        segments.append(SegmentData(name, locked, t - t[0], voltages, currents, w_m, at_rest, temperature, theta_e))
 
     rate = rates[0]
     for seg, r in zip(segments, rates):
@@ -407,6 +427,20 @@ def bench_from_frame(
     if nominal_R is not None:
         _check_current_magnitude(bench, nominal_R)
     return bench
+
+
+def _segment_temperature(rows: pd.DataFrame, where: str) -> np.ndarray | None:
+    """A segment's ``temperature`` (degC): all blank means not recorded (None); else every value finite."""
+    values = pd.to_numeric(rows["temperature"], errors="coerce").to_numpy(float)
+    if np.all(np.isnan(values)):
+        return None
+    if not np.all(np.isfinite(values)):
+        k = int(np.flatnonzero(~np.isfinite(values))[0])
+        raise DataError(
+            f"{where}: column 'temperature' is blank or not a number at sample {k + 1} although other samples of the "
+            "segment have one; give every sample of the segment a temperature in degC, or none."
+        )
+    return values
 
 
 def _check_current_magnitude(bench: BenchData, nominal_R: float) -> None:

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .forward import Experiment, simulate_states
+from .forward import Experiment, model_experiment, simulate_states
 from .identify import Identifiability, assess_identifiability
 from .motor import ESTIMATED, MotorParams
 from .plan import Plan
@@ -100,7 +100,7 @@ MAX_ELECTRICAL_STEP = 0.5
 
 def predict_segments(plan: Plan, motor: MotorParams) -> tuple[SegmentPrediction, ...]:
     """Simulate the plan on ``motor`` (drivecal's forward model) and summarise each segment."""
-    states = np.asarray(simulate_states(motor, Experiment.from_plan(plan)))
+    states = np.asarray(simulate_states(motor, model_experiment(Experiment.from_plan(plan), motor, ())))
     out, k = [], 0
     for seg in plan.segments:
         n = seg.num_samples(plan.sample_rate)
@@ -158,17 +158,20 @@ def assess_design(
     *,
     noise_sigma: float = 0.02,
     names: tuple[str, ...] = ESTIMATED,
+    delay_samples: int = 0,
 ) -> DesignReport:
     """Judge ``plan`` on the nominal ``motor`` before any bench time.
 
     Args:
         plan: the experiment (the voltage circle is checked first and raises).
-        motor: nominal motor.
+        motor: nominal motor, with its bench effects.
         noise_sigma: expected current-sensor noise (A), for the predicted intervals.
         names: parameters to estimate.
+        delay_samples: the inverter's PWM/computation delay (samples).
     """
     plan.check_feasible()
     segments = predict_segments(plan, motor)
-    ident = assess_identifiability(Experiment.from_plan(plan), motor, noise_sigma=noise_sigma, names=names)
+    experiment = Experiment.from_plan(plan, delay_samples=delay_samples)
+    ident = assess_identifiability(experiment, motor, noise_sigma=noise_sigma, names=names)
     return DesignReport(plan=plan, motor=motor, segments=segments, problems=_problems(plan, motor, segments),
                         identifiability=ident)

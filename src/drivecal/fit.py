@@ -2,7 +2,9 @@
 
 Unknowns are searched as ``z = ln(theta / theta_prior)`` so every parameter
 stays positive and every direction has the same scale (a raw ``ln(theta)``
-lets the first trust-region step jump to stiff, absurd motors). The whole
+lets the first trust-region step jump to stiff, absurd motors). Bench effects
+that may be zero or negative (sensor offsets, dead-time voltage) are searched
+additively, ``theta = theta_prior + step * z`` (``motor.search_scale``). The whole
 solve — optimistix LM, the Jacobian at the optimum, the covariance — is one
 ``jax.jit``-compiled function, ``vmap``-ped over datasets and starting points.
 
@@ -28,9 +30,9 @@ from scipy import stats
 
 from .data import BenchData
 from .errors import DrivecalError
-from .forward import Experiment, predict_currents
+from .forward import Experiment, model_experiment, predict_currents
 from .identify import Identifiability, assess_identifiability
-from .motor import ESTIMATED, FIXED, UNITS, MotorParams
+from .motor import ADDITIVE_SCALE, ESTIMATED, FIXED, NUISANCE, UNITS, MotorParams, from_search, to_search
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,11 +87,9 @@ def _jacobian_in_one_pass(f):
 
 
 def _residual_fn(prior: MotorParams, experiment: Experiment, names: tuple[str, ...], currents: jnp.ndarray):
-    theta0 = prior.vector(names)
-
     @_jacobian_in_one_pass
     def predicted(z):
-        motor = prior.with_vector(names, theta0 * jnp.exp(z))
+        motor = prior.with_vector(names, from_search(prior, names, z)[0])
         return predict_currents(motor, experiment).reshape(-1)
 
     def residual(z, _args):
@@ -102,17 +102,16 @@ def _solve_one(currents, z0, prior, experiment, names, options, verbose) -> _Sol
     residual = _residual_fn(prior, experiment, names, currents)
     solver = optx.LevenbergMarquardt(rtol=options.rtol, atol=options.atol, verbose=verbose)
     sol = optx.least_squares(residual, solver, z0, max_steps=options.max_steps, throw=False)
-    theta0 = prior.vector(names)
-    theta = theta0 * jnp.exp(sol.value)
+    theta, dtheta_dz = from_search(prior, names, sol.value)
     r = residual(sol.value, None)
 
-    # d r / d z = d I / d ln(theta): the Jacobian in relative units, which is
-    # also better conditioned to invert than the physical J^T J (ohms vs henries).
+    # d r / d z = d I / d ln(theta) (or per additive step): the Jacobian in relative
+    # units, better conditioned to invert than the physical J^T J (ohms vs henries).
     js = jax.jacfwd(lambda z: residual(z, None))(sol.value)
     m, n = js.shape
     rss = r @ r
     s2 = rss / (m - n)
-    cov = s2 * jnp.linalg.inv(js.T @ js) * jnp.outer(theta, theta)
+    cov = s2 * jnp.linalg.inv(js.T @ js) * jnp.outer(dtheta_dz, dtheta_dz)
     ok = (
         (sol.result == optx.RESULTS.successful)
         & jnp.all(jnp.isfinite(theta))
@@ -192,6 +191,7 @@ class Calibration:
         source: where the data came from.
         history: (K, n) accepted LM iterates of ``fit_names`` (SI), the start
             first; single fits only, else None.
+        delay_samples: the inverter delay (samples) the fit assumed.
     """
 
     names: tuple[str, ...]
@@ -213,6 +213,7 @@ class Calibration:
     t_factor: float
     source: str = "synthetic bench"
     history: np.ndarray | None = None
+    delay_samples: int = 0
 
     # --- batch handling --------------------------------------------------
 
@@ -261,6 +262,9 @@ class Calibration:
     def fixed(self) -> dict[str, float]:
         """Parameters held fixed: the mechanical ones, and unidentifiable ones at their prior."""
         out = {n: float(getattr(self.prior, n)) for n in FIXED}
+        # Bench effects the user set but did not ask to estimate are assumptions too.
+        out.update({n: float(getattr(self.prior, n)) for n in NUISANCE
+                    if n not in self.names and n in ADDITIVE_SCALE and float(getattr(self.prior, n)) != 0.0})
         for n, ok in zip(self.names, self.identifiable):
             if not ok:
                 out[n] = float(getattr(self.prior, n))
@@ -312,9 +316,10 @@ class Calibration:
             "t_factor": self.t_factor,
             "identifiability": self.identifiability.to_dict(),
             "fixed": self.fixed,
-            "prior": {n: float(getattr(self.prior, n)) for n in ESTIMATED + FIXED + ("T_load",)},
+            "prior": self.prior.all_values(),
             "history": history,
             "source": self.source,
+            "delay_samples": self.delay_samples,
         }
 
     @classmethod
@@ -361,6 +366,7 @@ class Calibration:
             t_factor=float(d.get("t_factor") or stats.t.ppf(0.975, m - len(fit_names))),
             source=d.get("source", "synthetic bench"),
             history=None if hist is None else arr(hist["values"]),
+            delay_samples=int(d.get("delay_samples", 0)),
         )
 
     def to_pandas(self):
@@ -493,6 +499,7 @@ def fit_currents(
     names: tuple[str, ...] = ESTIMATED,
     options: FitOptions = FitOptions(),
     source: str = "synthetic bench",
+    delay_samples: int = 0,
 ) -> Calibration:
     """Fit measured currents of a known experiment; batched if ``currents`` is.
 
@@ -510,6 +517,8 @@ def fit_currents(
         names: parameters to estimate.
         options: solver settings.
         source: label of the data, for reports.
+        delay_samples: the inverter delay already applied in ``experiment``
+            (recorded in the result).
 
     Returns:
         A :class:`Calibration`, with a leading batch axis when ``currents`` has one.
@@ -527,6 +536,7 @@ def fit_currents(
     if per_dataset and (not batched or experiment.voltages.shape[0] != currents.shape[0]):
         raise DrivecalError(f"{source}: a batch of {experiment.voltages.shape[0]} experiments needs currents of "
                             f"shape ({experiment.voltages.shape[0]}, M, 2), got {currents.shape}.")
+    experiment = model_experiment(experiment, prior, names)
     # A batch of experiments shares one plan shape; judge it on the first (the structure is common).
     first = jax.tree_util.tree_map(lambda a: a[0], experiment) if per_dataset else experiment
     ident = identifiability or assess_identifiability(first, prior, names=names)
@@ -540,9 +550,10 @@ def fit_currents(
     start = _start_vector(initial, prior, names)
     start = np.broadcast_to(start, cur.shape[:1] + (len(names),))
     fit_idx = [names.index(n) for n in fit_names]
-    if np.any(start[:, fit_idx] <= 0) or not np.all(np.isfinite(start)):
-        raise DrivecalError(f"{source}: initial values of {', '.join(fit_names)} must be positive and finite.")
-    z0 = np.log(start[:, fit_idx] / np.asarray(prior.vector(fit_names)))
+    z0 = to_search(prior, fit_names, start[:, fit_idx])
+    if not np.all(np.isfinite(z0)):
+        raise DrivecalError(f"{source}: initial values of {', '.join(fit_names)} must be finite, and positive where "
+                            "the parameter is (R, inductances, flux, alpha_R).")
     _ITERATES.clear()
     solved = jax.device_get(
         _solve_batch(jnp.asarray(cur), jnp.asarray(z0), prior, experiment, fit_names, options, record=not batched)
@@ -551,7 +562,7 @@ def fit_currents(
     if not batched:
         steps = [z0[0]] + [it.reshape(-1) for it in _ITERATES]
         steps = [steps[0]] + [b for a, b in zip(steps, steps[1:]) if not np.array_equal(a, b)]
-        history = np.asarray(prior.vector(fit_names)) * np.exp(np.asarray(steps))
+        history = np.asarray(from_search(prior, fit_names, jnp.asarray(np.asarray(steps)))[0])
 
     m = experiment.num_samples * 2
     t_factor = float(stats.t.ppf(0.975, m - len(fit_names)))
@@ -581,6 +592,7 @@ def fit_currents(
         t_factor=t_factor,
         source=source,
         history=history,
+        delay_samples=int(delay_samples),
     )
     return calib if batched else calib[0]
 
@@ -593,6 +605,7 @@ def fit(
     names: tuple[str, ...] = ESTIMATED,
     options: FitOptions = FitOptions(),
     measured_speed: bool = True,
+    delay_samples: int = 0,
 ) -> Calibration:
     """Calibrate a motor from bench data.
 
@@ -607,13 +620,15 @@ def fit(
         options: solver settings.
         measured_speed: where free segments carry a measured ``w_m``, use it as
             an input so J and B play no part (see ``BenchData.experiment``).
+        delay_samples: the inverter's PWM/computation delay (samples).
     """
     return fit_currents(
-        bench.experiment(measured_speed=measured_speed),
+        bench.experiment(measured_speed=measured_speed, delay_samples=delay_samples),
         bench.currents,
         prior,
         initial=initial,
         names=names,
         options=options,
         source=bench.source,
+        delay_samples=delay_samples,
     )

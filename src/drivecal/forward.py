@@ -13,6 +13,7 @@ electrical time constants its error is ~1e-9 A (see tests/test_forward.py).
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import equinox as eqx
@@ -20,7 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .motor import MotorParams, dq_derivatives
+from .inverter import dead_time_error
+from .motor import MotorParams, dq_derivatives, resistance_at
 from .plan import Plan
 
 
@@ -39,6 +41,15 @@ class Experiment(eqx.Module):
             shape (M, 3); zero where unused.
         speed_input: 1.0 where the measured speed drives the electrical
             equations (J and B unused), 0.0 where speed is simulated, shape (M,).
+        temperature: winding temperature (degC) per sample, NaN where not
+            recorded (R is then the stated R), shape (M,).
+        theta_e: measured electrical rotor angle (rad) per sample, NaN where
+            not measured (dq bench files), shape (M,).
+        theta_e_start: electrical angle (rad) at the segment's start: the
+            measured one, else 0 (a locked rotor's d axis on phase a), shape (M,).
+        dead_time: the applied voltage includes the inverter's dead-time error
+            ``inverter.dead_time_error`` of magnitude ``motor.v_dead`` (static:
+            a model with it compiles separately).
     """
 
     voltages: jnp.ndarray
@@ -48,6 +59,10 @@ class Experiment(eqx.Module):
     sample_period: jnp.ndarray
     speed: jnp.ndarray
     speed_input: jnp.ndarray
+    temperature: jnp.ndarray
+    theta_e: jnp.ndarray
+    theta_e_start: jnp.ndarray
+    dead_time: bool = eqx.field(static=True, default=False)
 
     @property
     def num_samples(self) -> int:
@@ -62,25 +77,42 @@ class Experiment(eqx.Module):
         sample_period: float,
         initial_states: list[np.ndarray] | None = None,
         speeds: list[np.ndarray | None] | None = None,
+        temperatures: list[np.ndarray | float | None] | None = None,
+        angles: list[np.ndarray | None] | None = None,
+        delay_samples: int = 0,
     ) -> Experiment:
         """Lay segments end to end.
 
         Args:
-            voltages: per segment, ``[v_d, v_q]`` (V), shape (N_s, 2).
+            voltages: per segment, commanded ``[v_d, v_q]`` (V), shape (N_s, 2).
             locked: per segment, whether the rotor is locked.
             sample_period: seconds between samples.
             initial_states: per segment, the starting state (default: rest).
             speeds: per segment, a measured speed (rad/s, shape (N_s,)) to use
                 as an input, or None to simulate the speed from J and B.
+            temperatures: per segment, winding temperature (degC): a constant,
+                one value per sample, or None (not recorded).
+            angles: per segment, the measured electrical angle (rad, shape
+                (N_s,)) of a phase bench file, or None.
+            delay_samples: PWM/computation delay: the inverter applies command
+                k at sample k + delay_samples. The first samples of a segment
+                then apply 0 V (from rest) or the first command (a segment
+                that starts moving).
         """
-        starts, lock, x0, speed, use = [], [], [], [], []
+        applied, starts, lock, x0, speed, use, temp, theta, theta0 = [], [], [], [], [], [], [], [], []
         for s, v in enumerate(voltages):
             n = v.shape[0]
+            init = np.zeros(4) if initial_states is None else np.asarray(initial_states[s], dtype=float)
+            applied.append(delayed(v, delay_samples, at_rest=not np.any(init[:3])))
+            t_s = None if temperatures is None else temperatures[s]
+            temp.append(np.full(n, np.nan) if t_s is None else np.broadcast_to(np.asarray(t_s, dtype=float), (n,)))
+            a_s = None if angles is None else angles[s]
+            theta.append(np.full(n, np.nan) if a_s is None else np.asarray(a_s, dtype=float))
+            theta0.append(np.full(n, 0.0 if a_s is None else float(a_s[0])))
             start = np.zeros(n, dtype=bool)
             start[0] = True
             starts.append(start)
             lock.append(np.full(n, float(locked[s])))
-            init = np.zeros(4) if initial_states is None else np.asarray(initial_states[s], dtype=float)
             w = None if speeds is None else speeds[s]
             if w is None:
                 speed.append(np.zeros((n, 3)))
@@ -91,24 +123,74 @@ class Experiment(eqx.Module):
                 init = np.array([init[0], init[1], w[0], init[3]])
             x0.append(np.broadcast_to(init, (n, 4)))
         return cls(
-            voltages=jnp.asarray(np.concatenate(voltages, axis=0), dtype=float),
+            voltages=jnp.asarray(np.concatenate(applied, axis=0), dtype=float),
             locked=jnp.asarray(np.concatenate(lock)),
             segment_start=jnp.asarray(np.concatenate(starts)),
             initial_state=jnp.asarray(np.concatenate(x0, axis=0)),
             sample_period=jnp.asarray(float(sample_period)),
             speed=jnp.asarray(np.concatenate(speed, axis=0)),
             speed_input=jnp.asarray(np.concatenate(use)),
+            temperature=jnp.asarray(np.concatenate(temp)),
+            theta_e=jnp.asarray(np.concatenate(theta)),
+            theta_e_start=jnp.asarray(np.concatenate(theta0)),
         )
 
     @classmethod
-    def from_plan(cls, plan: Plan) -> Experiment:
-        """The experiment a plan commands, every segment starting from rest."""
+    def from_plan(cls, plan: Plan, *, delay_samples: int = 0) -> Experiment:
+        """The experiment a plan commands, every segment starting from rest.
+
+        Args:
+            plan: the plan (checked for feasibility first).
+            delay_samples: PWM/computation delay of the inverter (samples).
+        """
         plan.check_feasible()
         return cls.from_segments(
             [seg.voltages(plan.sample_rate) for seg in plan.segments],
             [seg.locked for seg in plan.segments],
             plan.sample_period,
+            temperatures=[seg.temperature for seg in plan.segments],
+            delay_samples=delay_samples,
         )
+
+    def with_extra_delay(self, samples: int) -> Experiment:
+        """The same run with the applied voltages ``samples`` more samples late, segment by segment."""
+        starts = np.flatnonzero(np.asarray(self.segment_start))
+        stops = np.append(starts[1:], self.num_samples)
+        volts = np.asarray(self.voltages)
+        x0 = np.asarray(self.initial_state)
+        later = [delayed(volts[a:b], samples, at_rest=not np.any(x0[a, :3])) for a, b in zip(starts, stops)]
+        return dataclasses.replace(self, voltages=jnp.asarray(np.concatenate(later, axis=0)))
+
+    def with_dead_time(self, dead_time: bool = True) -> Experiment:
+        """The same experiment with the inverter's dead-time error modelled (or not)."""
+        return dataclasses.replace(self, dead_time=bool(dead_time))
+
+    @property
+    def has_temperature(self) -> bool:
+        """Some sample carries a recorded winding temperature."""
+        return bool(np.any(np.isfinite(np.asarray(self.temperature))))
+
+    @property
+    def has_angle(self) -> bool:
+        """Some sample carries a measured rotor angle (a phase bench file)."""
+        return bool(np.any(np.isfinite(np.asarray(self.theta_e))))
+
+
+def delayed(voltages: np.ndarray, delay_samples: int, *, at_rest: bool = True) -> np.ndarray:
+    """The voltages an inverter with a ``delay_samples`` PWM/computation delay applies, shape (N, 2) (V).
+
+    Command k acts at sample k + delay_samples; before the first command acts
+    the inverter applies 0 V (a segment from rest) or the first command (a
+    segment that starts moving, whose earlier command is unknown).
+    """
+    if int(delay_samples) != delay_samples or delay_samples < 0:
+        raise ValueError(f"delay_samples must be a whole number of samples >= 0, got {delay_samples!r}")
+    d = int(delay_samples)
+    v = np.asarray(voltages, dtype=float)
+    if d == 0:
+        return v
+    pad = np.zeros((d, 2)) if at_rest else np.broadcast_to(v[:1], (d, 2))
+    return np.concatenate([pad, v], axis=0)[: v.shape[0]]
 
 
 def _speed_at_stages(w: np.ndarray) -> np.ndarray:
@@ -124,15 +206,41 @@ def _speed_at_stages(w: np.ndarray) -> np.ndarray:
     return np.stack([w, w_mid, ext[2:-1]], axis=1)
 
 
+#: RK4 sub-steps per sample period when the dead-time model is on.
+DEAD_TIME_SUBSTEPS = 4
+
+
+def _quadratic(speed: Any, u: float) -> Any:
+    """Speed at fraction ``u`` of the sample period from ``(w_k, w_k+1/2, w_k+1)`` (quadratic through the three)."""
+    if u == 0.0:
+        return speed[0]
+    if u == 0.5:
+        return speed[1]
+    if u == 1.0:
+        return speed[2]
+    return (2 * (u - 0.5) * (u - 1) * speed[0] - 4 * u * (u - 1) * speed[1] + 2 * u * (u - 0.5) * speed[2])
+
+
 def rk4_step(
-    state: tuple, v_dq: Any, motor: MotorParams, locked: Any, dt: Any, speed: Any = None, speed_input: Any = 0.0
+    state: tuple,
+    v_dq: Any,
+    motor: MotorParams,
+    locked: Any,
+    dt: Any,
+    speed: Any = None,
+    speed_input: Any = 0.0,
+    *,
+    theta_e_start: Any = 0.0,
+    dead_time: bool = False,
 ) -> tuple:
     """One classical Runge-Kutta step of length ``dt`` (s) with the input held.
 
     ``state`` is the tuple ``(i_d, i_q, w_m, theta_m)``; so is the result.
     Where ``speed_input`` is 1, the speed is not integrated but read from the
     measurement ``speed = (w_m(t), w_m(t + dt/2), w_m(t + dt))`` (rad/s) at
-    the RK4 stages; J and B then drop out.
+    the RK4 stages; J and B then drop out. With ``dead_time`` (static) the
+    inverter's voltage error at the stage's currents and electrical angle
+    ``theta_e_start + pole_pairs * theta_m`` (rad) is added to ``v_dq``.
     """
     if speed is None:
         speed = (state[2], state[2], state[2])
@@ -140,7 +248,12 @@ def rk4_step(
 
     def f(x, w_measured):
         x = (x[0], x[1], jnp.where(speed_input > 0, w_measured, x[2]), x[3])
-        d = dq_derivatives(x, v_dq, motor, locked)
+        v = v_dq
+        if dead_time:
+            e_d, e_q = dead_time_error(x[0], x[1], theta_e_start + motor.pole_pairs * x[3], motor.v_dead,
+                                       motor.i_dead)
+            v = (v_dq[0] + e_d, v_dq[1] + e_q)
+        d = dq_derivatives(x, v, motor, locked)
         return d[0], d[1], (1.0 - speed_input) * d[2], d[3]
 
     def axpy(x, k, h):
@@ -159,9 +272,20 @@ def simulate_states(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
     dt = experiment.sample_period
 
     def step(x, sample):
-        v_dq, locked, start, x0, speed, speed_input = sample
+        v_dq, locked, start, x0, speed, speed_input, temperature, theta_e_start = sample
         x = tuple(jnp.where(start, x0[i], x[i]) for i in range(4))
-        return rk4_step(x, v_dq, motor, locked, dt, (speed[0], speed[1], speed[2]), speed_input), jnp.stack(x)
+        # R follows the winding temperature sample by sample (one multiply; NaN: not recorded).
+        warm = motor.replace(R=resistance_at(motor, temperature))
+        # The dead time's smooth sign turns within a fraction of a sample where a current crosses
+        # zero; sub-steps keep RK4 within 1e-6 A of the engine there (3e-5 A with one step).
+        substeps = DEAD_TIME_SUBSTEPS if experiment.dead_time else 1
+        x_next = x
+        for j in range(substeps):
+            a, b = j / substeps, (j + 1) / substeps
+            stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
+            x_next = rk4_step(x_next, v_dq, warm, locked, dt / substeps, stages, speed_input,
+                              theta_e_start=theta_e_start, dead_time=experiment.dead_time)
+        return x_next, jnp.stack(x)
 
     inputs = (
         experiment.voltages,
@@ -170,6 +294,8 @@ def simulate_states(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
         experiment.initial_state,
         experiment.speed,
         experiment.speed_input,
+        experiment.temperature,
+        experiment.theta_e_start,
     )
     x_init = tuple(experiment.initial_state[0, i] for i in range(4))
     _, states = jax.lax.scan(step, x_init, inputs)
@@ -177,8 +303,43 @@ def simulate_states(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
 
 
 def predict_currents(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
-    """Predicted ``[i_d, i_q]`` (A) at every sample instant, shape (M, 2)."""
-    return simulate_states(motor, experiment)[:, :2]
+    """Predicted measured ``[i_d, i_q]`` (A) at every sample instant, shape (M, 2).
+
+    The motor's currents plus what the current sensors add: the dq offsets,
+    and the phase offsets rotated into dq by the electrical angle (measured
+    where the bench file has one, else simulated).
+    """
+    return measured_currents(simulate_states(motor, experiment), motor, experiment)
+
+
+def measured_currents(states: jnp.ndarray, motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
+    """``[i_d, i_q]`` (A) the sensors report for simulated ``states`` (M, 4): the currents plus offsets, (M, 2)."""
+    theta = jnp.where(jnp.isnan(experiment.theta_e), experiment.theta_e_start + motor.pole_pairs * states[:, 3],
+                      experiment.theta_e)
+    d_offset, q_offset = sensor_offsets(theta, motor)
+    return jnp.stack([states[:, 0] + d_offset, states[:, 1] + q_offset], axis=-1)
+
+
+def sensor_offsets(theta_e: Any, motor: MotorParams) -> tuple[Any, Any]:
+    """What the current sensors add to ``(i_d, i_q)`` (A) at electrical angle ``theta_e`` (rad).
+
+    The dq offsets, plus the phase offsets of two phase sensors (``i_c = -i_a - i_b``)
+    taken through the amplitude-invariant Clarke and Park transforms.
+    """
+    o_alpha = motor.offset_a
+    o_beta = (motor.offset_a + 2.0 * motor.offset_b) / jnp.sqrt(3.0)
+    c, s = jnp.cos(theta_e), jnp.sin(theta_e)
+    return motor.offset_d + o_alpha * c + o_beta * s, motor.offset_q - o_alpha * s + o_beta * c
+
+
+def model_experiment(experiment: Experiment, motor: MotorParams, names: tuple[str, ...]) -> Experiment:
+    """``experiment`` with the bench effects the model needs switched on.
+
+    The dead-time term costs a little in every RK4 stage, so it is compiled in
+    only when ``v_dead`` is estimated or the motor file sets it non-zero.
+    """
+    wanted = "v_dead" in names or bool(np.any(np.asarray(motor.v_dead) != 0.0))
+    return experiment.with_dead_time(wanted or experiment.dead_time)
 
 
 def stack_experiments(experiments: list[Experiment]) -> Experiment:

@@ -27,14 +27,17 @@ import numpy as np
 from scipy import stats
 
 from .errors import DrivecalError
-from .forward import Experiment, predict_currents
-from .motor import ESTIMATED, MotorParams
+from .forward import Experiment, model_experiment, predict_currents
+from .motor import ADDITIVE_SCALE, ESTIMATED, MotorParams, search_scale
 
 #: A parameter whose relative sensitivity is below this fraction of the
 #: strongest one is dead: at double precision it is zero.
 DEAD_TOL = 1e-9
 #: Conditioning ceiling (column-normalised J) for the verdict "identifiable".
 COND_MAX = 1e6
+#: A positive parameter whose predicted 95 % CI half-width exceeds this
+#: fraction of its value is weak: the plan barely constrains it.
+WEAK_RELATIVE_CI = 0.5
 
 
 @functools.partial(jax.jit, static_argnames=("names",))
@@ -173,12 +176,46 @@ def structural_reason(name: str, experiment: Experiment) -> str | None:
         return "no q-axis excitation (i_q never changes)"
     if name == "R" and not np.any(volts) and not np.any(np.asarray(experiment.initial_state)[:, :2]):
         return "no voltage applied, so no current flows"
+    if name == "alpha_R":
+        temps = np.asarray(experiment.temperature)
+        known = temps[np.isfinite(temps)]
+        if known.size == 0:
+            return "no winding temperature recorded (give each segment a 'temperature')"
+        if np.ptp(known) == 0:
+            return f"every segment at one winding temperature ({known[0]:g} degC): alpha_R cannot be told from R"
+    if name in ("offset_a", "offset_b") and not experiment.has_angle:
+        return "per-phase offsets need a phase (abc) bench file with a rotor angle"
     return None
 
 
 def _why_dead(name: str, experiment: Experiment) -> str:
     """A plain-language reason a parameter has no effect on the currents."""
     return structural_reason(name, experiment) or "no effect on the measured currents in this plan"
+
+
+def _why_weak(name: str, experiment: Experiment, fit_names: tuple[str, ...], cov: np.ndarray, half_width: float,
+              value: float) -> str:
+    """Why a fitted parameter is only weakly constrained, in plain language.
+
+    ``cov`` is the predicted covariance of ``fit_names`` (relative units);
+    the partner most correlated with ``name`` is named.
+    """
+    what = (f"predicted 95 % CI +/-{100 * half_width / value:.3g} %" if name not in ADDITIVE_SCALE
+            else f"predicted 95 % CI +/-{half_width:.3g}")
+    i = fit_names.index(name)
+    sd = np.sqrt(np.diag(cov))
+    corr = cov[i] / (sd[i] * sd)
+    corr[i] = 0.0
+    j = int(np.argmax(np.abs(corr))) if len(fit_names) > 1 else i
+    partner = f"nearly confounded with {fit_names[j]} (predicted correlation {corr[j]:+.4f})" if j != i else (
+        "the plan barely moves the currents with it")
+    if name == "alpha_R":
+        temps = np.asarray(experiment.temperature)
+        known = temps[np.isfinite(temps)]
+        if known.size:
+            return (f"temperature spread of {np.ptp(known):.3g} K is too small to tell alpha_R from R: {partner}, "
+                    f"{what}; run segments further apart in temperature")
+    return f"{partner}, {what}"
 
 
 def check_requested(names: tuple[str, ...], experiment: Experiment, source: str) -> None:
@@ -195,6 +232,9 @@ def check_requested(names: tuple[str, ...], experiment: Experiment, source: str)
                 "Ld": "add a segment with d-axis voltage",
                 "Lq": "add a segment with q-axis voltage",
                 "R": "apply a voltage",
+                "alpha_R": "run segments at two or more winding temperatures",
+                "offset_a": "give a phase bench file (i_a, i_b, v_a, v_b, theta_e) or estimate offset_d/offset_q",
+                "offset_b": "give a phase bench file (i_a, i_b, v_a, v_b, theta_e) or estimate offset_d/offset_q",
             }[name]
             raise DrivecalError(
                 f"{source}: {name} is requested ('estimate' in the motor file) but the run has {reason}; "
@@ -233,12 +273,17 @@ def assess_identifiability(
             predicted intervals.
         names: the parameters to be estimated.
     """
+    experiment = model_experiment(experiment, motor, names)
     jac = np.asarray(sensitivity_jacobian(motor, experiment, names))
-    theta = np.asarray(motor.vector(names))
-    jac_scaled = jac * theta  # d I / d ln(theta): unit-free comparison across parameters
+    # d I / d ln(theta) (per additive step for offsets and dead time): comparable across parameters.
+    scale = np.asarray(search_scale(motor, names)[1])
+    jac_scaled = jac * scale
     sensitivity = np.linalg.norm(jac_scaled, axis=0)
     strongest = float(sensitivity.max()) if sensitivity.size else 0.0
-    dead = tuple(n for n, s in zip(names, sensitivity) if s <= DEAD_TOL * strongest)
+    # A structural reason (e.g. alpha_R with one temperature) makes a parameter dead even where its
+    # column is not zero but merely a copy of another's: hold it, so the other stays fitted.
+    dead = tuple(n for n, s in zip(names, sensitivity)
+                 if s <= DEAD_TOL * strongest or (n not in ESTIMATED and structural_reason(n, experiment)))
     live = tuple(n for n in names if n not in dead)
     live_idx = [names.index(n) for n in live]
     confounded = _confounded(jac_scaled[:, live_idx], live)
@@ -246,23 +291,35 @@ def assess_identifiability(
 
     report = _jaxterity_report(jac, names)
     reasons = {n: _why_dead(n, experiment) for n in dead}
-    reasons.update({n: "moves the currents only together with " + ", ".join(m for m in confounded if m != n)
+    reasons.update({n: structural_reason(n, experiment)
+                    or "moves the currents only together with " + ", ".join(m for m in confounded if m != n)
                     for n in confounded})
 
     m = jac.shape[0]
     se = np.full(len(names), np.nan)
+    cov_rel = np.zeros((0, 0))
     if fit_names:
         idx = [names.index(n) for n in fit_names]
         js = jac_scaled[:, idx]
         cov_rel = noise_sigma**2 * np.linalg.inv(js.T @ js)
-        se[idx] = np.sqrt(np.diag(cov_rel)) * theta[idx]
+        se[idx] = np.sqrt(np.diag(cov_rel)) * scale[idx]
     t_factor = float(stats.t.ppf(0.975, max(m - len(fit_names), 1)))
+    weak = [n for n in report.weak_params if n in fit_names]
+    theta = np.asarray(motor.vector(names))
+    for i, n in enumerate(names):
+        # A positive parameter whose predicted interval spans more than half its value is not pinned down.
+        if n in fit_names and n not in ADDITIVE_SCALE and t_factor * se[i] > WEAK_RELATIVE_CI * abs(theta[i]):
+            if n not in weak:
+                weak.append(n)
+    for n in weak:
+        reasons[n] = _why_weak(n, experiment, fit_names, cov_rel, t_factor * se[names.index(n)],
+                               abs(theta[names.index(n)]))
     return Identifiability(
         names=tuple(names),
         rank=int(report.rank),
         condition_number=float(report.condition_number),
-        identifiable=bool(report.identifiable) and not dead and not confounded,
-        weak_params=tuple(report.weak_params),
+        identifiable=bool(report.identifiable) and not dead and not confounded and not weak,
+        weak_params=tuple(weak),
         dead_params=dead,
         confounded_params=confounded,
         reasons=reasons,

@@ -27,6 +27,23 @@ ESTIMATED: tuple[str, ...] = ("R", "Ld", "Lq", "lambda_m")
 #: Parameters held fixed by default (known from the datasheet or unobservable
 #: from currents alone).
 FIXED: tuple[str, ...] = ("pole_pairs", "J", "B")
+#: Bench effects that stand between the motor and the measurement, each
+#: optional: estimated only when named (motor file ``estimate``), else held at
+#: the motor file's value (zero by default: an ideal inverter and sensors).
+NUISANCE: tuple[str, ...] = ("v_dead", "offset_d", "offset_q", "offset_a", "offset_b", "alpha_R")
+#: Every parameter a fit may estimate, in drivecal's order.
+ESTIMABLE: tuple[str, ...] = ESTIMATED + NUISANCE
+#: Settings of the bench-effect models, never estimated.
+SETTINGS: tuple[str, ...] = ("T_load", "i_dead", "T_ref")
+#: Parameters that may be zero or negative: searched additively around the
+#: prior in steps of this size (their unit), not as ``ln(theta/prior)``.
+ADDITIVE_SCALE: dict[str, float] = {
+    "v_dead": 0.1,
+    "offset_d": 0.01,
+    "offset_q": 0.01,
+    "offset_a": 0.01,
+    "offset_b": 0.01,
+}
 
 #: SI unit of every parameter, for tables and JSON.
 UNITS: dict[str, str] = {
@@ -37,6 +54,15 @@ UNITS: dict[str, str] = {
     "pole_pairs": "-",
     "J": "kg*m^2",
     "B": "N*m*s",
+    "v_dead": "V",
+    "offset_d": "A",
+    "offset_q": "A",
+    "offset_a": "A",
+    "offset_b": "A",
+    "alpha_R": "1/K",
+    "T_load": "N*m",
+    "i_dead": "A",
+    "T_ref": "degC",
 }
 
 #: One-line meaning of every parameter.
@@ -48,6 +74,15 @@ DESCRIPTIONS: dict[str, str] = {
     "pole_pairs": "pole pairs",
     "J": "rotor inertia",
     "B": "viscous friction",
+    "v_dead": "inverter dead-time voltage per phase",
+    "offset_d": "d-axis current-sensor offset",
+    "offset_q": "q-axis current-sensor offset",
+    "offset_a": "phase-a current-sensor offset",
+    "offset_b": "phase-b current-sensor offset",
+    "alpha_R": "temperature coefficient of R",
+    "T_load": "load torque",
+    "i_dead": "current scale of the dead-time sign",
+    "T_ref": "temperature at which R is stated",
 }
 
 
@@ -66,8 +101,18 @@ class MotorParams(eqx.Module):
         J: rotor inertia (kg*m^2).
         B: viscous friction (N*m*s).
         T_load: constant load torque (N*m); zero on an unloaded bench.
+        v_dead: inverter dead-time voltage (V) each phase loses against its
+            current's direction (see ``inverter.py``); 0 for an ideal inverter.
+        i_dead: current scale (A) of the smooth sign of the dead-time model.
+        offset_d, offset_q: current-sensor offsets (A) seen on i_d and i_q.
+        offset_a, offset_b: phase current-sensor offsets (A) of a phase (abc)
+            bench file; they reach dq rotated by the rotor angle.
+        alpha_R: temperature coefficient of R (1/K); copper 3.93e-3.
+        T_ref: winding temperature (degC) at which R is stated:
+            ``R(T) = R * (1 + alpha_R * (T - T_ref))``.
 
-    The defaults are the 48 V interior PMSM of the drivecal tutorial bench.
+    The defaults are the 48 V interior PMSM of the drivecal tutorial bench on
+    an ideal inverter and ideal sensors.
     """
 
     R: Any = 0.45
@@ -78,6 +123,14 @@ class MotorParams(eqx.Module):
     J: Any = 1.2e-3
     B: Any = 8.0e-5
     T_load: Any = 0.0
+    v_dead: Any = 0.0
+    i_dead: Any = 0.05
+    offset_d: Any = 0.0
+    offset_q: Any = 0.0
+    offset_a: Any = 0.0
+    offset_b: Any = 0.0
+    alpha_R: Any = 3.93e-3
+    T_ref: Any = 20.0
 
     def replace(self, **changes: Any) -> MotorParams:
         """A copy with the named fields changed, e.g. ``motor.replace(R=0.5)``."""
@@ -94,6 +147,10 @@ class MotorParams(eqx.Module):
     def as_dict(self) -> dict[str, float]:
         """Plain ``{name: float}`` of the seven motor parameters (unbatched motors only)."""
         return {n: float(getattr(self, n)) for n in ESTIMATED + FIXED}
+
+    def all_values(self) -> dict[str, float]:
+        """Plain ``{name: float}`` of every field, bench effects included (unbatched only)."""
+        return {f.name: float(getattr(self, f.name)) for f in dataclasses.fields(self)}
 
 
 def dq_derivatives(state: Any, v_dq: Any, motor: MotorParams, locked: Any) -> tuple:
@@ -120,6 +177,49 @@ def dq_derivatives(state: Any, v_dq: Any, motor: MotorParams, locked: Any) -> tu
     free = 1.0 - jnp.asarray(locked, dtype=float)
     dw_m = free * (torque - motor.B * w_m - motor.T_load) / motor.J
     return di_d, di_q, dw_m, free * w_m
+
+
+def resistance_at(motor: MotorParams, temperature: Any) -> Any:
+    """Winding resistance (ohm) at ``temperature`` (degC): ``R * (1 + alpha_R * (T - T_ref))``.
+
+    NaN temperature means "not recorded": the stated R.
+    """
+    rise = jnp.where(jnp.isnan(temperature), 0.0, temperature - motor.T_ref)
+    return motor.R * (1.0 + motor.alpha_R * rise)
+
+
+def search_scale(motor: MotorParams, names: tuple[str, ...]) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """How a fit searches ``names`` around ``motor``: ``theta = theta0 * exp(z)`` or ``theta0 + s * z``.
+
+    Returns:
+        ``(is_log, scale)``, each shape (..., len(names)): whether the name is
+        searched in ``z = ln(theta/theta0)`` (positive parameters), and
+        ``d theta / d z`` at z = 0 (theta0 for those, the additive step of
+        :data:`ADDITIVE_SCALE` for the others).
+    """
+    theta0 = motor.vector(names)
+    is_log = jnp.asarray([n not in ADDITIVE_SCALE for n in names])
+    step = jnp.asarray([ADDITIVE_SCALE.get(n, 1.0) for n in names], dtype=float)
+    return jnp.broadcast_to(is_log, theta0.shape), jnp.where(is_log, theta0, step)
+
+
+def from_search(motor: MotorParams, names: tuple[str, ...], z: Any) -> tuple[Any, Any]:
+    """Parameters ``theta`` (their units) at search coordinates ``z``, and ``d theta / d z``."""
+    theta0 = motor.vector(names)
+    is_log, scale = search_scale(motor, names)
+    theta = jnp.where(is_log, theta0 * jnp.exp(z), theta0 + scale * z)
+    return theta, jnp.where(is_log, theta, scale)
+
+
+def to_search(motor: MotorParams, names: tuple[str, ...], theta: Any) -> Any:
+    """Search coordinates ``z`` of parameters ``theta`` (inverse of :func:`from_search`)."""
+    import numpy as np
+
+    theta0 = np.asarray(motor.vector(names))
+    is_log, scale = (np.asarray(a) for a in search_scale(motor, names))
+    theta = np.asarray(theta, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(is_log, np.log(theta / theta0), (theta - theta0) / scale)
 
 
 def electromagnetic_torque(i_d: Any, i_q: Any, motor: MotorParams) -> Any:

@@ -31,6 +31,8 @@ class Segment:
         locked: rotor clamped (True) or free to turn (False).
         v_d, v_q: applied d/q voltage (V): a constant, or a sequence with one
             value per sample, value k applied on ``[t_k, t_k+1)``.
+        temperature: winding temperature during the segment (degC), or None
+            when not controlled; R follows it (``motor.resistance_at``).
     """
 
     name: str
@@ -38,6 +40,7 @@ class Segment:
     locked: bool
     v_d: Voltage = 0.0
     v_q: Voltage = 0.0
+    temperature: float | None = None
 
     def num_samples(self, sample_rate: float) -> int:
         """Number of samples ``round(duration * sample_rate)``."""

@@ -31,7 +31,8 @@ import numpy as np
 from .data import BenchData
 from .errors import DrivecalError
 from .fit import Calibration
-from .forward import Experiment, predict_currents
+from .mismatch import unmodelled_effects
+from .forward import Experiment, model_experiment, predict_currents
 from .plan import Plan
 from .report import plan_to_dict
 from .verdict import residual_checks, verdict
@@ -80,7 +81,9 @@ def segment_traces(calibration: Calibration, bench: BenchData, experiment: Exper
         bench: the data it was fitted to.
         experiment: the experiment the fit used (default ``bench.experiment()``).
     """
-    experiment = bench.experiment() if experiment is None else experiment
+    if experiment is None:
+        experiment = bench.experiment(delay_samples=calibration.delay_samples)
+    experiment = model_experiment(experiment, calibration.motor, calibration.names)
     predicted = np.asarray(predict_currents(calibration.motor, experiment))
     out, k = [], 0
     for seg in bench.segments:
@@ -137,6 +140,11 @@ def build_result(
     stated = float(noise_sigma) if noise_sigma is not None else None
     doc["segments"] = segments
     doc["residuals"] = residual_checks(segment_residuals(segments), float(calibration.sigma_hat), stated)
+    if bool(calibration.converged):
+        used = bench.experiment(delay_samples=calibration.delay_samples) if experiment is None else experiment
+        doc["residuals"]["unmodelled_effects"] = unmodelled_effects(
+            calibration.motor, calibration.fit_names, used, bench.currents, float(calibration.sigma_hat),
+            calibration.delay_samples, used.with_extra_delay(1))
     doc["verdict"] = verdict(doc)
     doc["plan"] = plan_to_dict(plan) if plan is not None else None
     doc["motor_file"] = None if motor_file is None else str(motor_file)

@@ -68,6 +68,8 @@ def plan_to_dict(plan: Plan) -> dict[str, Any]:
     segments = []
     for seg in plan.segments:
         entry = {"name": seg.name, "duration": seg.duration, "locked": seg.locked}
+        if seg.temperature is not None:
+            entry["temperature"] = float(seg.temperature)
         for axis in ("v_d", "v_q"):
             value = getattr(seg, axis)
             entry[axis] = float(value) if not hasattr(value, "__len__") else [float(v) for v in value]

@@ -13,6 +13,9 @@ The criterion, kept simple on purpose so a reader can check it by hand:
      ``WHITENESS_ALPHA`` (Bonferroni over the tests). A correct model leaves
      sensor noise, which is white; an unmodelled effect (a wrong R, saturation,
      dead time) leaves a smooth, autocorrelated trace.
+   * a score test finds the signature of a bench effect the model left out
+     (dead time, sensor offsets, more delay; ``mismatch.py``) at family-wise
+     level 1e-3: the detail names the effect and the fix.
    A sigma_hat well *below* the stated noise is reported as a note only.
 3. **partially calibrated: <names> not identifiable by this plan** when the
    identifiability check held some parameters at their prior.
@@ -142,6 +145,10 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
         bad = [f"{s['name']} {ax}" for s in res["per_segment"] for ax in ("i_d", "i_q")
                if s[ax]["ljung_box_p"] is not None and s[ax]["ljung_box_p"] < res["whiteness_p_threshold"]]
         details.append("residuals are not white (Ljung-Box, " + ", ".join(bad) + "): a systematic, unmodelled effect")
+    for effect in res.get("unmodelled_effects") or []:
+        if effect["suspected"]:
+            mismatch = True
+            details.append(effect["message"])
     if res.get("sigma_ratio") is not None and res["sigma_ratio"] < 1.0 / SIGMA_RATIO_MAX:
         details.append(f"note: sigma_hat is only {res['sigma_ratio']:.2f} times the stated sensor noise; "
                        "the stated noise may be too pessimistic")
