@@ -192,7 +192,7 @@ def _fit_table(cal: drivecal.Calibration) -> Table:
         if cal.identifiable[i]:
             half = 0.5 * (cal.ci95[i, 1] - cal.ci95[i, 0])
             table.add_row(n, drivecal.UNITS[n], prior, _fmt(cal.estimate[i]), f"{cal.se[i]:.3g}",
-                          f"[{_fmt(cal.ci95[i, 0])}, {_fmt(cal.ci95[i, 1])}]", f"±{100 * half / cal.estimate[i]:.3f}")
+                          f"[{_fmt(cal.ci95[i, 0])}, {_fmt(cal.ci95[i, 1])}]", f"±{100 * half / abs(cal.estimate[i]):.3f}")
         else:
             table.add_row(n, drivecal.UNITS[n], prior, f"[dim]{_fmt(cal.estimate[i])} (prior)[/dim]", "-",
                           "[red]not identifiable[/red]", "-")
@@ -368,13 +368,18 @@ def _print_design(report, plan_path, console: Console) -> None:
     for i, n in enumerate(ident.names):
         nominal = float(getattr(report.motor, n))
         half = ident.predicted_ci95[i]
-        if n in ident.reasons:
-            table.add_row(n, drivecal.UNITS[n], _fmt(nominal), "-", "-", f"[red]no: {ident.reasons[n]}[/red]")
+        relative = f"{100 * half / abs(nominal):.3g}" if nominal != 0 else "-"
+        if n not in ident.fit_names:
+            table.add_row(n, drivecal.UNITS[n], _fmt(nominal), "-", "-", "[red]no[/red]")
+        elif n in ident.weak_params:
+            table.add_row(n, drivecal.UNITS[n], _fmt(nominal), f"{half:.3g}", relative, "[yellow]weak[/yellow]")
         else:
-            weak = " (weak)" if n in ident.weak_params else ""
-            table.add_row(n, drivecal.UNITS[n], _fmt(nominal), f"{half:.3g}", f"{100 * half / nominal:.3g}",
-                          "yes" + weak)
+            table.add_row(n, drivecal.UNITS[n], _fmt(nominal), f"{half:.3g}", relative, "yes")
     console.print(table)
+    for n in ident.names:
+        if n in ident.reasons:
+            colour = "yellow" if n in ident.fit_names else "red"
+            console.print(f"  [{colour}]{n}[/{colour}]: {escape(ident.reasons[n])}")
 
 
 EXIT_COMPLETED_WITH_FAILURES = 1

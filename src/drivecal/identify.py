@@ -35,6 +35,10 @@ from .motor import ADDITIVE_SCALE, ESTIMATED, MotorParams, search_scale
 DEAD_TOL = 1e-9
 #: Conditioning ceiling (column-normalised J) for the verdict "identifiable".
 COND_MAX = 1e6
+#: Variance inflation factor above which a parameter is weak: correlation
+#: with the others inflates its standard error more than tenfold (the usual
+#: "severe collinearity" threshold of regression diagnostics).
+VIF_MAX = 100.0
 #: A positive parameter whose predicted 95 % CI half-width exceeds this
 #: fraction of its value is weak: the plan barely constrains it.
 WEAK_RELATIVE_CI = 0.5
@@ -77,6 +81,9 @@ class Identifiability:
         predicted_se: predicted standard error of each parameter (its unit),
             NaN where not identifiable.
         predicted_ci95: predicted 95 % CI half-width (its unit), NaN where not identifiable.
+        variance_inflation: per name, how much correlation with the other
+            fitted parameters inflates its variance (1 = none; NaN where not
+            fitted); above ``VIF_MAX`` the parameter is weak.
     """
 
     names: tuple[str, ...]
@@ -94,6 +101,7 @@ class Identifiability:
     num_residuals: int
     predicted_se: tuple[float, ...]
     predicted_ci95: tuple[float, ...]
+    variance_inflation: tuple[float, ...] = ()
 
     def to_dict(self) -> dict:
         """The JSON ``identifiability`` block."""
@@ -117,6 +125,7 @@ class Identifiability:
             "noise_sigma": self.noise_sigma,
             "predicted_se": {n: finite(v) for n, v in zip(self.names, self.predicted_se)},
             "predicted_ci95": {n: finite(v) for n, v in zip(self.names, self.predicted_ci95)},
+            "variance_inflation": {n: finite(v) for n, v in zip(self.names, self.variance_inflation)},
         }
 
 
@@ -148,6 +157,7 @@ class Identifiability:
             num_residuals=int(d.get("num_residuals", 0)),
             predicted_se=tuple(num(pse.get(n)) for n in names),
             predicted_ci95=tuple(num(pci.get(n)) for n in names),
+            variance_inflation=tuple(num((d.get("variance_inflation") or {}).get(n)) for n in names),
         )
 
 
@@ -298,19 +308,22 @@ def assess_identifiability(
     m = jac.shape[0]
     se = np.full(len(names), np.nan)
     cov_rel = np.zeros((0, 0))
+    vif = np.full(len(names), np.nan)
     if fit_names:
         idx = [names.index(n) for n in fit_names]
         js = jac_scaled[:, idx]
         cov_rel = noise_sigma**2 * np.linalg.inv(js.T @ js)
         se[idx] = np.sqrt(np.diag(cov_rel)) * scale[idx]
+        norms = np.linalg.norm(js, axis=0)
+        vif[idx] = np.diag(cov_rel) * norms**2 / noise_sigma**2
     t_factor = float(stats.t.ppf(0.975, max(m - len(fit_names), 1)))
     weak = [n for n in report.weak_params if n in fit_names]
     theta = np.asarray(motor.vector(names))
     for i, n in enumerate(names):
         # A positive parameter whose predicted interval spans more than half its value is not pinned down.
-        if n in fit_names and n not in ADDITIVE_SCALE and t_factor * se[i] > WEAK_RELATIVE_CI * abs(theta[i]):
-            if n not in weak:
-                weak.append(n)
+        loose = n not in ADDITIVE_SCALE and t_factor * se[i] > WEAK_RELATIVE_CI * abs(theta[i])
+        if n in fit_names and (loose or vif[i] > VIF_MAX) and n not in weak:
+            weak.append(n)
     for n in weak:
         reasons[n] = _why_weak(n, experiment, fit_names, cov_rel, t_factor * se[names.index(n)],
                                abs(theta[names.index(n)]))
@@ -330,4 +343,5 @@ def assess_identifiability(
         num_residuals=int(m),
         predicted_se=tuple(float(s) for s in se),
         predicted_ci95=tuple(float(t_factor * s) for s in se),
+        variance_inflation=tuple(float(v) for v in vif),
     )
