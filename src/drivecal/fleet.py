@@ -34,7 +34,7 @@ from .config import MotorFile
 from .data import FORMATS, BenchData, bench_from_frame, read_table
 from .errors import DrivecalError
 from .fit import fit_currents
-from .forward import Experiment, predict_currents, stack_experiments
+from .forward import Experiment, model_experiment, predict_currents, stack_experiments
 from .identify import check_requested
 from .motor import ESTIMATED, MotorParams
 from .record import file_sha256
@@ -160,13 +160,14 @@ def _failed_row(item: _Loaded, status: str, reason: str) -> dict[str, Any]:
 
 def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool, chunk: int) -> list[dict]:
     prior, names = motor_file.motor, motor_file.names
-    experiments = [it.bench.experiment(measured_speed=measured_speed) for it in items]
+    delay = motor_file.delay_samples
+    experiments = [it.bench.experiment(measured_speed=measured_speed, delay_samples=delay) for it in items]
     size = _bucket(len(items), chunk)
     pad = [0] * (size - len(items))  # padding repeats the first motor; its rows are dropped
     index = list(range(len(items))) + pad
-    experiment = stack_experiments([experiments[i] for i in index])
+    experiment = model_experiment(stack_experiments([experiments[i] for i in index]), prior, names)
     currents = np.stack([items[i].bench.currents for i in index])
-    cal = fit_currents(experiment, currents, prior, names=names, source=f"{len(items)} motors")
+    cal = fit_currents(experiment, currents, prior, names=names, source=f"{len(items)} motors", delay_samples=delay)
     fit_idx = [names.index(n) for n in cal.fit_names]
     theta = np.asarray(cal.estimate)[:, fit_idx]
     res = np.asarray(_residuals(jnp.asarray(theta), prior, experiment, jnp.asarray(currents), cal.fit_names))

@@ -97,6 +97,8 @@ def residual_checks(
             lag1 = float(d[:-1] @ d[1:] / (d @ d)) if r.shape[0] > 2 and d @ d > 0 else None
             entry[axis] = {
                 "rms": float(np.sqrt(np.mean(r**2))),
+                # A segment the model misses stands out here even when the overall sigma_hat looks fine.
+                "rms_over_sigma_hat": float(np.sqrt(np.mean(r**2)) / sigma_hat) if sigma_hat > 0 else None,
                 "mean": float(r.mean()),
                 "lag1_autocorrelation": lag1,
                 "ljung_box_p": None if not np.isfinite(p) else p,
