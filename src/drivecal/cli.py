@@ -372,7 +372,8 @@ def _print_optimal(result, plan_path, out, console: Console) -> None:
                   f"{result.budget:g} s, {result.iterations} BFGS steps ({escape(result.message)})")
     seg_table = Table(title="segments before -> after", title_justify="left")
     for col in ("segment", "rotor", "duration [ms]", "v_d [V]", "v_q [V]", "peak |i_dq| [A]", "peak w_m [rad/s]"):
-        seg_table.add_column(escape(col), justify="left" if col in ("segment", "rotor") else "right", no_wrap=True)
+        seg_table.add_column(escape(col), justify="left" if col in ("segment", "rotor") else "right",
+                             no_wrap=not col.startswith("v_"))  # waveform texts may wrap
 
     def level(spec):
         if not isinstance(spec, dict):
@@ -381,12 +382,7 @@ def _print_optimal(result, plan_path, out, console: Console) -> None:
             return f"step {spec['level']:.3g}"
         if spec["kind"] == "samples":
             return "samples"
-        text = f"{spec['kind']} {spec['offset']:+.3g}±{spec['amplitude']:.3g}"
-        if spec["kind"] == "chirp":
-            text += f" {spec['f_start']:.3g}-{spec['f_stop']:.3g} Hz"
-        elif spec["kind"] == "multisine":
-            text += f" {spec['f_min']:.3g}-{spec['f_max']:.3g} Hz"
-        return text
+        return f"{spec['kind']} {spec['offset']:+.3g}±{spec['amplitude']:.2g}"  # bands: in the written file
 
     for sb, sa, pb, pa in zip(before.segments, after.segments, result.report_before.segments,
                               result.report_after.segments):
