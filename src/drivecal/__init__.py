@@ -57,6 +57,7 @@ from .config import MotorFile, load_motor, load_plan, motor_from_dict, plan_from
 from .design import DesignReport, assess_design  # noqa: E402
 from . import fleet, waveforms  # noqa: E402
 from .saturation import SaturationCheck, check_saturation  # noqa: E402
+from .optimal import OptimalDesign, optimize_plan  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -114,5 +115,7 @@ __all__ = [
     "fleet",
     "SaturationCheck",
     "check_saturation",
+    "OptimalDesign",
+    "optimize_plan",
     "__version__",
 ]
