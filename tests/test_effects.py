@@ -14,7 +14,6 @@ import pytest
 
 import drivecal as dc
 from drivecal.forward import model_experiment, predict_currents
-from drivecal.identify import VIF_MAX
 
 NOISE = 0.02  # A
 EFFECTS = dict(v_dead=0.4, offset_d=0.05, offset_q=-0.03)
@@ -152,7 +151,7 @@ def test_design_reports_alpha_ill_conditioned_when_temperatures_are_close(truth)
     alpha = names.index("alpha_R")
     assert "alpha_R" in close.identifiability.weak_params and not close.identifiability.identifiable
     assert "temperature spread of 1 K" in close.identifiability.reasons["alpha_R"]
-    assert close.identifiability.variance_inflation[alpha] > VIF_MAX
+    assert close.identifiability.variance_inflation[alpha] > 100  # correlation with R inflates its variance 100x
     assert close.identifiability.condition_number > 3 * apart.identifiability.condition_number
     assert apart.ok and "alpha_R" not in apart.identifiability.weak_params
     assert apart.identifiability.variance_inflation[alpha] < 10

@@ -35,10 +35,12 @@ from .motor import ADDITIVE_SCALE, ESTIMATED, MotorParams, search_scale
 DEAD_TOL = 1e-9
 #: Conditioning ceiling (column-normalised J) for the verdict "identifiable".
 COND_MAX = 1e6
-#: Variance inflation factor above which a parameter is weak: correlation
-#: with the others inflates its standard error more than tenfold (the usual
-#: "severe collinearity" threshold of regression diagnostics).
-VIF_MAX = 100.0
+#: Predicted correlation with another parameter above which (in magnitude)
+#: a parameter is weak: the data pins down a combination of the two, not each
+#: (a common practical-identifiability threshold). Variance inflation alone is
+#: no such sign: a D-optimal plan can correlate several estimates moderately
+#: and still pin each down far better than the default plan.
+CORR_MAX = 0.99
 #: A positive parameter whose predicted 95 % CI half-width exceeds this
 #: fraction of its value is weak: the plan barely constrains it.
 WEAK_RELATIVE_CI = 0.5
@@ -83,7 +85,7 @@ class Identifiability:
         predicted_ci95: predicted 95 % CI half-width (its unit), NaN where not identifiable.
         variance_inflation: per name, how much correlation with the other
             fitted parameters inflates its variance (1 = none; NaN where not
-            fitted); above ``VIF_MAX`` the parameter is weak.
+            fitted), for information.
     """
 
     names: tuple[str, ...]
@@ -309,6 +311,7 @@ def assess_identifiability(
     se = np.full(len(names), np.nan)
     cov_rel = np.zeros((0, 0))
     vif = np.full(len(names), np.nan)
+    paired = np.zeros(len(names))
     if fit_names:
         idx = [names.index(n) for n in fit_names]
         js = jac_scaled[:, idx]
@@ -316,13 +319,16 @@ def assess_identifiability(
         se[idx] = np.sqrt(np.diag(cov_rel)) * scale[idx]
         norms = np.linalg.norm(js, axis=0)
         vif[idx] = np.diag(cov_rel) * norms**2 / noise_sigma**2
+        sd = np.sqrt(np.diag(cov_rel))
+        corr = cov_rel / np.outer(sd, sd) - np.eye(len(idx))
+        paired[idx] = np.max(np.abs(corr), axis=1) if len(idx) > 1 else 0.0
     t_factor = float(stats.t.ppf(0.975, max(m - len(fit_names), 1)))
     weak = [n for n in report.weak_params if n in fit_names]
     theta = np.asarray(motor.vector(names))
     for i, n in enumerate(names):
         # A positive parameter whose predicted interval spans more than half its value is not pinned down.
         loose = n not in ADDITIVE_SCALE and t_factor * se[i] > WEAK_RELATIVE_CI * abs(theta[i])
-        if n in fit_names and (loose or vif[i] > VIF_MAX) and n not in weak:
+        if n in fit_names and (loose or paired[i] > CORR_MAX) and n not in weak:
             weak.append(n)
     for n in weak:
         reasons[n] = _why_weak(n, experiment, fit_names, cov_rel, t_factor * se[names.index(n)],
