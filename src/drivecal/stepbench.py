@@ -121,7 +121,7 @@ def step_engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = Fa
     for seg in plan.segments:
         states = _run_segment(seg, motor, plan.sample_rate)
         segments.append(SegmentData(
-            name=seg.name, locked=seg.locked, t=np.arange(states.shape[0]) / plan.sample_rate,
+            name=seg.name, locked=seg.locked, t=np.arange(states.shape[0]) * (1.0 / plan.sample_rate),
             voltages=seg.voltages(plan.sample_rate), currents=states[:, :2].copy(),
             w_m=states[:, 2].copy() if record_speed else None))
     return BenchData(segments=tuple(segments), sample_rate=plan.sample_rate, source="synthetic bench")
