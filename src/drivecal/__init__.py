@@ -58,6 +58,9 @@ from .design import DesignReport, assess_design  # noqa: E402
 from . import fleet, waveforms  # noqa: E402
 from .saturation import SaturationCheck, check_saturation  # noqa: E402
 from .optimal import OptimalDesign, optimize_plan  # noqa: E402
+from .autoplan import auto_design, auto_plan  # noqa: E402
+from .stepbench import step_engine_bench  # noqa: E402
+from .config import plan_toml, write_plan  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -117,5 +120,10 @@ __all__ = [
     "check_saturation",
     "OptimalDesign",
     "optimize_plan",
+    "auto_design",
+    "auto_plan",
+    "step_engine_bench",
+    "plan_toml",
+    "write_plan",
     "__version__",
 ]

@@ -11,6 +11,7 @@ import dataclasses
 import math
 from typing import Any
 
+import jax
 import numpy as np
 
 from .forward import Experiment, model_experiment, simulate_states
@@ -98,9 +99,13 @@ def _num(x: float) -> float | None:
 MAX_ELECTRICAL_STEP = 0.5
 
 
+#: One compile per plan length, not one per motor (auto-plan judges many motors).
+_simulate_states = jax.jit(simulate_states)
+
+
 def predict_segments(plan: Plan, motor: MotorParams) -> tuple[SegmentPrediction, ...]:
     """Simulate the plan on ``motor`` (drivecal's forward model) and summarise each segment."""
-    states = np.asarray(simulate_states(motor, model_experiment(Experiment.from_plan(plan), motor, ())))
+    states = np.asarray(_simulate_states(motor, model_experiment(Experiment.from_plan(plan), motor, ())))
     out, k = [], 0
     for seg in plan.segments:
         n = seg.num_samples(plan.sample_rate)
