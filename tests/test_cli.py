@@ -97,8 +97,8 @@ def test_design_of_the_seed_poor_plan_names_the_dead_parameters(capsys):
     captured = capsys.readouterr()
     assert info.value.code == 2
     assert "rank 2/4" in captured.out
-    assert "no: no d-axis excitation (i_d never changes)" in captured.out
-    assert "no: no free-rotor segment (back-EMF needs the rotor to turn)" in captured.out
+    assert "Ld: no d-axis excitation (i_d never changes)" in captured.out
+    assert "lambda_m: no free-rotor segment (back-EMF needs the rotor to turn)" in captured.out
     assert captured.err.strip().endswith("cannot identify Ld, lambda_m; see the assessment above.")
 
 
