@@ -43,11 +43,17 @@ class FitOptions:
         rtol, atol: optimistix LM termination tolerances on ``z = ln(theta/prior)``
             and on the residuals; 1e-7 moves no estimate by more than ~1e-4 standard errors.
         max_steps: LM steps before giving up (reported, not raised).
+        first_pass_steps: batches only: under ``vmap`` every fit of a batch runs
+            until its slowest member stops, so the batch is first solved with at
+            most this many steps, and only the fits that hit it are solved again
+            from their start with ``max_steps`` (in a small batch of their own).
+            The results are those of one solve with ``max_steps``. None: one pass.
     """
 
     rtol: float = 1e-7
     atol: float = 1e-7
     max_steps: int = 200
+    first_pass_steps: int | None = 16
 
 
 class _Solved(eqx.Module):
@@ -103,11 +109,12 @@ def _solve_one(currents, z0, prior, experiment, names, options, verbose) -> _Sol
     solver = optx.LevenbergMarquardt(rtol=options.rtol, atol=options.atol, verbose=verbose)
     sol = optx.least_squares(residual, solver, z0, max_steps=options.max_steps, throw=False)
     theta, dtheta_dz = from_search(prior, names, sol.value)
-    r = residual(sol.value, None)
-
-    # d r / d z = d I / d ln(theta) (or per additive step): the Jacobian in relative
-    # units, better conditioned to invert than the physical J^T J (ohms vs henries).
-    js = jax.jacfwd(lambda z: residual(z, None))(sol.value)
+    # The solver's last accepted linearisation is at sol.value: its residual and
+    # Jacobian d r / d z (relative units, or per additive step: better conditioned
+    # to invert than the physical J^T J, ohms vs henries) are reused rather than
+    # recomputed (two rollouts fewer). Bit-identical to jacfwd at sol.value.
+    r = sol.state.f_info.residual
+    js = sol.state.f_info.jac.as_matrix()
     m, n = js.shape
     rss = r @ r
     s2 = rss / (m - n)
@@ -153,6 +160,41 @@ def _solve_batch(currents, z0, prior, experiment, names, options, record=False) 
     return jax.vmap(_solve_one, in_axes=(0, 0, None, experiment_axis, None, None, None))(
         currents, z0, prior, experiment, names, options, verbose
     )
+
+
+def _straggler_bucket(n: int, total: int) -> int:
+    """Batch size to re-solve n stragglers of a batch of ``total``: a power of 4, so few shapes compile."""
+    size = 4
+    while size < n:
+        size *= 4
+    return min(size, total)
+
+
+def _solve_staged(currents, z0, prior, experiment, names, options: FitOptions) -> _Solved:
+    """``_solve_batch`` of a batch in two passes (see ``FitOptions.first_pass_steps``); numpy results."""
+    first = options.first_pass_steps
+    b = currents.shape[0]
+    if first is None or first >= options.max_steps or b < 2:
+        one = dataclasses.replace(options, first_pass_steps=None)
+        return jax.device_get(_solve_batch(currents, z0, prior, experiment, names, one))
+    quick = dataclasses.replace(options, max_steps=first, first_pass_steps=None)
+    solved = jax.device_get(_solve_batch(currents, z0, prior, experiment, names, quick))
+    again = np.flatnonzero(solved.result_code == optx.RESULTS.nonlinear_max_steps_reached._value)
+    if again.size == 0:
+        return solved
+    size = _straggler_bucket(again.size, b)
+    index = np.concatenate([again, np.full(size - again.size, again[0])])
+    per_dataset = experiment.voltages.ndim == 3
+    sub_experiment = jax.tree_util.tree_map(lambda a: a[index], experiment) if per_dataset else experiment
+    full = dataclasses.replace(options, first_pass_steps=None)
+    redone = jax.device_get(_solve_batch(currents[index], z0[index], prior, sub_experiment, names, full))
+
+    def merge(a, r):
+        a = np.array(a)
+        a[again] = np.asarray(r)[: again.size]
+        return a
+
+    return jax.tree_util.tree_map(merge, solved, redone)
 
 
 def _result_message(code: int, converged: bool) -> str:
@@ -555,9 +597,11 @@ def fit_currents(
         raise DrivecalError(f"{source}: initial values of {', '.join(fit_names)} must be finite, and positive where "
                             "the parameter is (R, inductances, flux, alpha_R).")
     _ITERATES.clear()
-    solved = jax.device_get(
-        _solve_batch(jnp.asarray(cur), jnp.asarray(z0), prior, experiment, fit_names, options, record=not batched)
-    )
+    if batched:
+        solved = _solve_staged(cur, z0, prior, experiment, fit_names, options)
+    else:
+        solved = jax.device_get(_solve_batch(jnp.asarray(cur), jnp.asarray(z0), prior, experiment, fit_names,
+                                             dataclasses.replace(options, first_pass_steps=None), record=True))
     history = None
     if not batched:
         steps = [z0[0]] + [it.reshape(-1) for it in _ITERATES]

@@ -477,9 +477,9 @@ def _fleet_states(theta: jnp.ndarray, nominal: MotorParams, experiment: Experime
 
 def predict_currents_and_speed(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
     """``[i_d, i_q, w_m]`` (A, A, rad/s) at every sample, shape (M, 3)."""
-    from .forward import simulate_states
+    from .forward import _rollout
 
-    return simulate_states(motor, experiment)[:, :3]
+    return _rollout(motor, experiment, 3)
 
 
 def synthetic_fleet(

