@@ -34,7 +34,7 @@ demo: $(STAMP)
 	$(BIN)/drivecal demo --out demo-output
 
 test: $(STAMP) browser
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_core.py
