@@ -52,6 +52,10 @@ class Experiment(eqx.Module):
             a model with it compiles separately).
         phase_offsets: the measured currents include the phase sensors'
             offsets ``offset_a``, ``offset_b``, rotated by the rotor angle (static).
+        thermal: some segment recorded a temperature, so R follows it (static;
+            without it the rollout skips the per-sample resistance).
+        dead_time_substeps: RK4 sub-steps per sample with the dead-time model
+            (static): 4 resolve its smooth sign to 3e-7 A of the engine.
     """
 
     voltages: jnp.ndarray
@@ -66,6 +70,8 @@ class Experiment(eqx.Module):
     theta_e_start: jnp.ndarray
     dead_time: bool = eqx.field(static=True, default=False)
     phase_offsets: bool = eqx.field(static=True, default=False)
+    thermal: bool = eqx.field(static=True, default=False)
+    dead_time_substeps: int = eqx.field(static=True, default=4)
 
     @property
     def num_samples(self) -> int:
@@ -136,6 +142,7 @@ class Experiment(eqx.Module):
             temperature=jnp.asarray(np.concatenate(temp)),
             theta_e=jnp.asarray(np.concatenate(theta)),
             theta_e_start=jnp.asarray(np.concatenate(theta0)),
+            thermal=temperatures is not None and any(t is not None for t in temperatures),
         )
 
     @classmethod
@@ -203,10 +210,6 @@ def _speed_at_stages(w: np.ndarray) -> np.ndarray:
     ext = np.concatenate([[2 * w[0] - w[1]], w, [2 * w[-1] - w[-2], 3 * w[-1] - 2 * w[-2]]])
     w_mid = (-ext[:-3] + 9.0 * ext[1:-2] + 9.0 * ext[2:-1] - ext[3:]) / 16.0
     return np.stack([w, w_mid, ext[2:-1]], axis=1)
-
-
-#: RK4 sub-steps per sample period when the dead-time model is on.
-DEAD_TIME_SUBSTEPS = 4
 
 
 def _quadratic(speed: Any, u: float) -> Any:
@@ -283,11 +286,11 @@ def _rollout(motor: MotorParams, experiment: Experiment, keep: int) -> jnp.ndarr
     def step(x, sample):
         v_dq, locked, start, x0, speed, speed_input, temperature, theta_e_start = sample
         x = tuple(jnp.where(start, x0[i], x[i]) for i in range(4))
-        # R follows the winding temperature sample by sample (one multiply; NaN: not recorded).
-        warm = motor.replace(R=resistance_at(motor, temperature))
+        # R follows the winding temperature sample by sample (NaN: not recorded).
+        warm = motor.replace(R=resistance_at(motor, temperature)) if experiment.thermal else motor
         # The dead time's smooth sign turns within a fraction of a sample where a current crosses
         # zero; sub-steps keep RK4 within 1e-6 A of the engine there (3e-5 A with one step).
-        substeps = DEAD_TIME_SUBSTEPS if experiment.dead_time else 1
+        substeps = experiment.dead_time_substeps if experiment.dead_time else 1
         x_next = x
         for j in range(substeps):
             a, b = j / substeps, (j + 1) / substeps
@@ -368,4 +371,7 @@ def stack_experiments(experiments: list[Experiment]) -> Experiment:
     The result feeds ``fit_currents`` with a batch of currents, fitting benches
     that each applied their own voltages (or measured their own speed) in one call.
     """
+    # Static model switches must agree across the batch: switch on what any one needs.
+    flags = {f: any(getattr(e, f) for e in experiments) for f in ("dead_time", "phase_offsets", "thermal")}
+    experiments = [dataclasses.replace(e, **flags) for e in experiments]
     return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *experiments)

@@ -16,6 +16,7 @@ tested) is named in the verdict with the fix: add it to ``estimate``.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -87,7 +88,8 @@ def unmodelled_effects(
     candidates = {k: v for k, v in EFFECTS.items() if not set(v[0]) & set(fit_names)}
     probe_names = tuple(n for params, _ in candidates.values() for n in params)
     all_names = tuple(fit_names) + probe_names
-    probe = model_experiment(base, motor, all_names)
+    # Sensitivity columns at v_dead = 0 need no sub-steps (they resolve the sign's turn at v_dead != 0).
+    probe = dataclasses.replace(model_experiment(base, motor, all_names), dead_time_substeps=1)
 
     jac = np.asarray(sensitivity_jacobian(motor, probe, all_names))
     fitted = jac[:, : len(fit_names)]
