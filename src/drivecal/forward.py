@@ -172,11 +172,6 @@ class Experiment(eqx.Module):
         return dataclasses.replace(self, voltages=jnp.asarray(np.concatenate(later, axis=0)))
 
     @property
-    def has_temperature(self) -> bool:
-        """Some sample carries a recorded winding temperature."""
-        return bool(np.any(np.isfinite(np.asarray(self.temperature))))
-
-    @property
     def has_angle(self) -> bool:
         """Some sample carries a measured rotor angle (a phase bench file)."""
         return bool(np.any(np.isfinite(np.asarray(self.theta_e))))

@@ -62,6 +62,7 @@ def unmodelled_effects(
     sigma_hat: float,
     delay_samples: int,
     delayed_experiment: Experiment | None = None,
+    predicted: np.ndarray | None = None,
 ) -> list[dict[str, Any]]:
     """Score tests of the bench effects missing from a fit.
 
@@ -75,6 +76,8 @@ def unmodelled_effects(
         delayed_experiment: the same run with one more sample of delay
             (``experiment.with_extra_delay(1)``), to test the delay; None
             skips that test.
+        predicted: the fit's predicted ``[i_d, i_q]`` (A), shape (M, 2), when
+            already computed (the report has them); else computed here.
 
     Returns:
         Per tested effect: ``effect``, ``parameters``, ``statistic``, ``dof``,
@@ -82,7 +85,9 @@ def unmodelled_effects(
     """
     base = model_experiment(experiment, motor, fit_names)
     y = np.asarray(currents, dtype=float).reshape(-1)
-    predicted = np.asarray(predict_currents(motor, base)).reshape(-1)
+    if predicted is None:
+        predicted = predict_currents(motor, base)
+    predicted = np.asarray(predicted, dtype=float).reshape(-1)
     residual = y - predicted
 
     candidates = {k: v for k, v in EFFECTS.items() if not set(v[0]) & set(fit_names)}

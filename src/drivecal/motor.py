@@ -21,6 +21,7 @@ from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 #: Parameters a calibration estimates by default, in this order.
 ESTIMATED: tuple[str, ...] = ("R", "Ld", "Lq", "lambda_m")
@@ -213,8 +214,6 @@ def from_search(motor: MotorParams, names: tuple[str, ...], z: Any) -> tuple[Any
 
 def to_search(motor: MotorParams, names: tuple[str, ...], theta: Any) -> Any:
     """Search coordinates ``z`` of parameters ``theta`` (inverse of :func:`from_search`)."""
-    import numpy as np
-
     theta0 = np.asarray(motor.vector(names))
     is_log, scale = (np.asarray(a) for a in search_scale(motor, names))
     theta = np.asarray(theta, dtype=float)

@@ -144,7 +144,8 @@ def build_result(
         used = bench.experiment(delay_samples=calibration.delay_samples) if experiment is None else experiment
         doc["residuals"]["unmodelled_effects"] = unmodelled_effects(
             calibration.motor, calibration.fit_names, used, bench.currents, float(calibration.sigma_hat),
-            calibration.delay_samples, used.with_extra_delay(1))
+            calibration.delay_samples, used.with_extra_delay(1),
+            predicted=np.concatenate([np.stack([s["i_d_pred"], s["i_q_pred"]], axis=1) for s in segments]))
     doc["verdict"] = verdict(doc)
     doc["plan"] = plan_to_dict(plan) if plan is not None else None
     doc["motor_file"] = None if motor_file is None else str(motor_file)
