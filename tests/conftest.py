@@ -50,7 +50,7 @@ def poor_bench(clean_poor) -> dc.BenchData:
 
 @pytest.fixture(scope="session")
 def default_fit(default_bench, guess) -> dc.Calibration:
-    """The default scenario: sigma 20 mA, seed 1, start at the guess."""
+    """The default scenario: sigma 20 mA, seed 1, the guess as prior, the search started from the data."""
     return dc.fit(default_bench, guess)
 
 
