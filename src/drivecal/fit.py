@@ -33,7 +33,7 @@ from .errors import DrivecalError
 from .forward import Experiment, model_experiment, predict_currents
 from .identify import Identifiability, assess_identifiability
 from .initial import equation_error_start
-from .motor import ADDITIVE_SCALE, ESTIMATED, FIXED, NUISANCE, UNITS, MotorParams, from_search, to_search
+from .motor import ADDITIVE_SCALE, ESTIMATED, FIXED, NUISANCE, UNITS, MotorParams, parameter_values, from_search, to_search
 
 
 @dataclasses.dataclass(frozen=True)
@@ -545,9 +545,9 @@ class Calibration:
 
 def _start_vector(initial: MotorParams | np.ndarray | None, prior: MotorParams, names: tuple[str, ...]) -> np.ndarray:
     if initial is None:
-        return np.asarray(prior.vector(names))
+        return parameter_values(prior, names, np)
     if isinstance(initial, MotorParams):
-        return np.asarray(initial.vector(names))
+        return parameter_values(initial, names, np)
     return np.asarray(initial, dtype=float)
 
 
@@ -631,12 +631,12 @@ def fit_currents(
     if not batched:
         steps = [z0[0]] + [it.reshape(-1) for it in _ITERATES]
         steps = [steps[0]] + [b for a, b in zip(steps, steps[1:]) if not np.array_equal(a, b)]
-        history = np.asarray(from_search(prior, fit_names, jnp.asarray(np.asarray(steps)))[0])
+        history = from_search(prior, fit_names, np.asarray(steps), np)[0]
 
     m = experiment.num_samples * 2
     t_factor = float(stats.t.ppf(0.975, m - len(fit_names)))
     b = cur.shape[0]
-    estimate = np.broadcast_to(np.asarray(prior.vector(names)), (b, len(names))).copy()
+    estimate = np.broadcast_to(parameter_values(prior, names, np), (b, len(names))).copy()
     se = np.full((b, len(names)), np.nan)
     estimate[:, fit_idx] = solved.theta
     se[:, fit_idx] = np.sqrt(np.diagonal(solved.covariance, axis1=-2, axis2=-1))

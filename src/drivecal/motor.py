@@ -143,7 +143,7 @@ class MotorParams(eqx.Module):
 
     def vector(self, names: tuple[str, ...] = ESTIMATED) -> jnp.ndarray:
         """The named parameters stacked along the last axis, shape (..., len(names))."""
-        return jnp.stack([jnp.asarray(getattr(self, n), dtype=float) for n in names], axis=-1)
+        return parameter_values(self, names, jnp)
 
     def as_dict(self) -> dict[str, float]:
         """Plain ``{name: float}`` of the seven motor parameters (unbatched motors only)."""
@@ -189,8 +189,17 @@ def resistance_at(motor: MotorParams, temperature: Any) -> Any:
     return motor.R * (1.0 + motor.alpha_R * rise)
 
 
-def search_scale(motor: MotorParams, names: tuple[str, ...]) -> tuple[jnp.ndarray, jnp.ndarray]:
+def parameter_values(motor: MotorParams, names: tuple[str, ...], xp: Any = jnp) -> Any:
+    """``motor``'s named parameters stacked along the last axis, shape (..., len(names)), in ``xp`` arrays."""
+    return xp.stack([xp.asarray(getattr(motor, n), dtype=float) for n in names], axis=-1)
+
+
+def search_scale(motor: MotorParams, names: tuple[str, ...], xp: Any = jnp) -> tuple[Any, Any]:
     """How a fit searches ``names`` around ``motor``: ``theta = theta0 * exp(z)`` or ``theta0 + s * z``.
+
+    Args:
+        xp: the array module, ``jax.numpy`` (traceable, the default) or ``numpy``
+            (host-side bookkeeping without dispatching JAX operations).
 
     Returns:
         ``(is_log, scale)``, each shape (..., len(names)): whether the name is
@@ -198,24 +207,24 @@ def search_scale(motor: MotorParams, names: tuple[str, ...]) -> tuple[jnp.ndarra
         ``d theta / d z`` at z = 0 (theta0 for those, the additive step of
         :data:`ADDITIVE_SCALE` for the others).
     """
-    theta0 = motor.vector(names)
-    is_log = jnp.asarray([n not in ADDITIVE_SCALE for n in names])
-    step = jnp.asarray([ADDITIVE_SCALE.get(n, 1.0) for n in names], dtype=float)
-    return jnp.broadcast_to(is_log, theta0.shape), jnp.where(is_log, theta0, step)
+    theta0 = parameter_values(motor, names, xp)
+    is_log = xp.asarray([n not in ADDITIVE_SCALE for n in names])
+    step = xp.asarray([ADDITIVE_SCALE.get(n, 1.0) for n in names], dtype=float)
+    return xp.broadcast_to(is_log, theta0.shape), xp.where(is_log, theta0, step)
 
 
-def from_search(motor: MotorParams, names: tuple[str, ...], z: Any) -> tuple[Any, Any]:
-    """Parameters ``theta`` (their units) at search coordinates ``z``, and ``d theta / d z``."""
-    theta0 = motor.vector(names)
-    is_log, scale = search_scale(motor, names)
-    theta = jnp.where(is_log, theta0 * jnp.exp(z), theta0 + scale * z)
-    return theta, jnp.where(is_log, theta, scale)
+def from_search(motor: MotorParams, names: tuple[str, ...], z: Any, xp: Any = jnp) -> tuple[Any, Any]:
+    """Parameters ``theta`` (their units) at search coordinates ``z``, and ``d theta / d z`` (``xp`` as above)."""
+    theta0 = parameter_values(motor, names, xp)
+    is_log, scale = search_scale(motor, names, xp)
+    theta = xp.where(is_log, theta0 * xp.exp(z), theta0 + scale * z)
+    return theta, xp.where(is_log, theta, scale)
 
 
 def to_search(motor: MotorParams, names: tuple[str, ...], theta: Any) -> Any:
-    """Search coordinates ``z`` of parameters ``theta`` (inverse of :func:`from_search`)."""
-    theta0 = np.asarray(motor.vector(names))
-    is_log, scale = (np.asarray(a) for a in search_scale(motor, names))
+    """Search coordinates ``z`` of parameters ``theta`` (inverse of :func:`from_search`; numpy)."""
+    theta0 = parameter_values(motor, names, np)
+    is_log, scale = search_scale(motor, names, np)
     theta = np.asarray(theta, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(is_log, np.log(theta / theta0), (theta - theta0) / scale)
