@@ -28,6 +28,7 @@ import numpy as np
 import optimistix as optx
 from scipy import stats
 
+from . import traced
 from .data import BenchData
 from .errors import DrivecalError
 from .forward import Experiment, model_experiment, predict_currents
@@ -200,6 +201,11 @@ def _solve_compiled(currents, z0, prior, experiment, names, options, record=Fals
     )
 
 
+def _solve_fields(currents, z0, prior, experiment, names, options, record):
+    solved = _solve_compiled(currents, z0, prior, experiment, names, options, record)
+    return tuple(getattr(solved, f.name) for f in dataclasses.fields(_Solved))
+
+
 def _solve_batch(currents, z0, prior, experiment, names, options, record=False) -> _Solved:
     """Fit a batch: currents (B, M, 2) A, z0 (B, n). One compiled call.
 
@@ -209,7 +215,9 @@ def _solve_batch(currents, z0, prior, experiment, names, options, record=False) 
     iterate after each LM step is appended to ``_ITERATES`` as a (B, n) array
     (for convergence plots).
     """
-    solved = _solve_compiled(currents, z0, prior, experiment, names, options, record)
+    fields = traced.call(_solve_fields, "solve_batch", currents, z0, prior, experiment, names=names,
+                         options=options, record=record)
+    solved = _Solved(*fields)
     if record:
         accepted = np.asarray(solved.accepted)
         steps = int(np.max(np.asarray(solved.iterations), initial=0))

@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
+from . import traced
 from .errors import DrivecalError
 from .forward import Experiment, model_experiment, predict_currents
 from .motor import ADDITIVE_SCALE, ESTIMATED, MotorParams, search_scale
@@ -46,12 +47,16 @@ CORR_MAX = 0.99
 WEAK_RELATIVE_CI = 0.5
 
 
-@functools.partial(jax.jit, static_argnames=("names",))
 def sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...] = ESTIMATED) -> jnp.ndarray:
     """``d(i_d, i_q at every sample)/d(theta)``, shape (2M, len(names)), A per unit of theta.
 
     Rows alternate i_d, i_q sample by sample (the flattening of (M, 2)).
     """
+    return traced.call(_sensitivity_jacobian, "sensitivity_jacobian", motor, experiment, names=tuple(names))
+
+
+@functools.partial(jax.jit, static_argnames=("names",))
+def _sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...]) -> jnp.ndarray:
     theta = motor.vector(names)
 
     def currents(th):
