@@ -26,10 +26,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from scipy import stats
 
 from . import traced
 from .data import BenchData
+from .distributions import t_ppf
 from .errors import DrivecalError
 from .forward import Experiment, model_experiment, predict_currents
 from .identify import Identifiability, assess_identifiability
@@ -469,7 +469,7 @@ class Calibration:
             prior=prior,
             identifiability=Identifiability.from_dict(d["identifiability"]),
             num_residuals=m,
-            t_factor=float(d.get("t_factor") or stats.t.ppf(0.975, m - len(fit_names))),
+            t_factor=float(d.get("t_factor") or t_ppf(0.975, m - len(fit_names))),
             source=d.get("source", "synthetic bench"),
             history=None if hist is None else arr(hist["values"]),
             delay_samples=int(d.get("delay_samples", 0)),
@@ -673,7 +673,7 @@ def fit_currents(
         history = np.asarray(from_search(prior, fit_names, jnp.asarray(np.asarray(steps)))[0])
 
     m = experiment.num_samples * 2
-    t_factor = float(stats.t.ppf(0.975, m - len(fit_names)))
+    t_factor = float(t_ppf(0.975, m - len(fit_names)))
     b = cur.shape[0]
     estimate = np.broadcast_to(np.asarray(prior.vector(names)), (b, len(names))).copy()
     se = np.full((b, len(names)), np.nan)

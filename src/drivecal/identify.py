@@ -24,9 +24,9 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy import stats
 
 from . import traced
+from .distributions import t_ppf
 from .errors import DrivecalError
 from .forward import Experiment, model_experiment, predict_currents
 from .motor import ADDITIVE_SCALE, ESTIMATED, MotorParams, search_scale
@@ -327,7 +327,7 @@ def assess_identifiability(
         sd = np.sqrt(np.diag(cov_rel))
         corr = cov_rel / np.outer(sd, sd) - np.eye(len(idx))
         paired[idx] = np.max(np.abs(corr), axis=1) if len(idx) > 1 else 0.0
-    t_factor = float(stats.t.ppf(0.975, max(m - len(fit_names), 1)))
+    t_factor = float(t_ppf(0.975, max(m - len(fit_names), 1)))
     weak = [n for n in report.weak_params if n in fit_names]
     theta = np.asarray(motor.vector(names))
     for i, n in enumerate(names):
