@@ -196,7 +196,10 @@ def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
     for seg in plan.segments:
         t, states = _run_segment(seg, motor, plan.sample_rate, delay_samples)
         theta_e = float(motor.pole_pairs) * states[:, 3]
-        d_offset, q_offset = (np.asarray(o) for o in sensor_offsets(theta_e, motor))
+        if any(float(getattr(motor, o)) != 0.0 for o in ("offset_d", "offset_q", "offset_a", "offset_b")):
+            d_offset, q_offset = (np.asarray(o) for o in sensor_offsets(theta_e, motor))
+        else:  # ideal sensors: exactly the zeros sensor_offsets gives, without its dozen eager JAX ops
+            d_offset = q_offset = np.zeros(theta_e.shape)
         n = t.shape[0]
         segments.append(
             SegmentData(
