@@ -1,19 +1,22 @@
-"""Compiled computations kept on disk, so that a new process need not trace them again.
+"""Traced computations kept on disk, so that a new process need not trace them again.
 
 JAX's persistent compilation cache (see ``drivecal/__init__.py``) keeps the
 compiled kernels, but its key is the lowered program: every new process still
 traces and lowers each jitted function before it can look the kernel up, and
-for the fit's solve that is seconds of Python. :func:`call` keeps the compiled
-executable itself (``jax.experimental.serialize_executable``) next to the
-kernels, keyed by everything the trace depends on: drivecal's source code,
-the versions of the libraries traced through, the structure, shapes and
-dtypes of the arguments, the static arguments and the JAX settings that change
-a trace. A later process loads it and runs it without tracing or lowering.
+for the fit's solve that is seconds of Python. :func:`call` keeps the lowered
+program itself (``jax.export``: StableHLO and its signature) next to the
+kernels, keyed by everything the trace depends on: drivecal's source code, the
+versions of the libraries traced through, the structure, shapes and dtypes of
+the arguments, the static arguments and the JAX settings that change a trace.
+A later process loads it and runs it; its kernel is then an ordinary
+compilation-cache hit. (Keeping the compiled executable instead would also
+skip that lowering, but jaxlib 0.9 serialises an executable that itself came
+from the compilation cache without its code: it fails when run.)
 
-The same executable runs whether it was just compiled or loaded, so the
-numbers do not depend on the state of the cache (and they are those of the
-plain ``jax.jit`` call). Off with ``DRIVECAL_JAX_CACHE=0`` (the plain call then
-runs); any failure to compile, save or load falls back to the plain call.
+The same program runs whether it was just traced or loaded, so the numbers do
+not depend on the state of the cache (and they are those of the plain
+``jax.jit`` call). Off with ``DRIVECAL_JAX_CACHE=0`` (the plain call then
+runs); any failure to export, save or load falls back to the plain call.
 Calls with tracers (inside ``jit``, ``vmap`` or ``grad``) always take the plain
 call.
 """
@@ -26,6 +29,7 @@ import logging
 import os
 import pickle
 import tempfile
+import zlib
 from importlib import metadata
 from pathlib import Path
 from typing import Any, Callable
@@ -36,18 +40,20 @@ import numpy as np
 logger = logging.getLogger(__name__)
 
 #: Bump when the on-disk entry changes meaning.
-_FORMAT = 2
+_FORMAT = 4
+#: Entries kept; beyond this the least recently used go (a program is ~10-50 kB compressed).
+_MAX_ENTRIES = 256
 #: Libraries whose code is traced into drivecal's computations.
 _TRACED_LIBRARIES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "numpy")
-#: Marks a computation that cannot be kept: later processes go straight to the plain call.
+#: Marks a computation that cannot be exported: later processes go straight to the plain call.
 _UNKEPT = b"not kept"
 
-# key -> (compiled executable, output tree), or None: use the plain call.
+# key -> (jitted call of the loaded program, output tree), or None: use the plain call.
 _LOADED: dict[str, tuple[Callable, Any] | None] = {}
 
 
 def directory() -> Path | None:
-    """Where executables are kept (inside the compilation cache), or None when caching is off."""
+    """Where lowered programs are kept (inside the compilation cache), or None when caching is off."""
     from . import _cache_enabled
 
     if not _cache_enabled():
@@ -88,6 +94,18 @@ def _key(name: str, leaves: list, treedef: Any, static: dict[str, Any]) -> str:
     return h.hexdigest()
 
 
+def _prune(folder: Path) -> None:
+    """Drop the least recently used entries beyond ``_MAX_ENTRIES``."""
+    entries = []
+    for p in folder.glob("*.pkl"):
+        try:
+            entries.append((p.stat().st_mtime, p))
+        except OSError:
+            pass
+    for _, p in sorted(entries)[: max(len(entries) - _MAX_ENTRIES, 0)]:
+        p.unlink(missing_ok=True)
+
+
 def _write(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
@@ -104,9 +122,9 @@ def _write(path: Path, data: bytes) -> None:
 def _initialize_lapack() -> None:
     """Load JAX's CPU LAPACK kernels, as lowering a linear-algebra op would.
 
-    An executable compiled in another process calls them without any lowering
-    here, and uninitialised kernels crash the process (a null function
-    pointer; jax-ml/jax#29610).
+    A program lowered in another process calls them without any of their
+    lowering rules running here, and uninitialised kernels crash the process
+    (a null function pointer; jax-ml/jax#29610).
     """
     try:
         from jax._src.lib import lapack
@@ -118,8 +136,13 @@ def _initialize_lapack() -> None:
         jax.jit(jnp.linalg.inv).lower(jax.ShapeDtypeStruct((2, 2), jnp.float64))
 
 
+def _runner(exported: Any) -> Callable:
+    _initialize_lapack()
+    return jax.jit(lambda *leaves: exported.call(*leaves))
+
+
 def _load(path: Path) -> tuple[Callable, Any] | None | bool:
-    """The entry at ``path``: (executable, out_tree), None (not kept), or False (absent or unreadable)."""
+    """The entry at ``path``: (runner, out_tree), None (not kept), or False (absent or unreadable)."""
     try:
         data = path.read_bytes()
     except OSError:
@@ -127,20 +150,24 @@ def _load(path: Path) -> tuple[Callable, Any] | None | bool:
     if data == _UNKEPT:
         return None
     try:
-        from jax.experimental.serialize_executable import deserialize_and_load
-
-        (serialized, in_tree, out_tree_flat), out_tree = pickle.loads(data)
-        _initialize_lapack()
-        return deserialize_and_load(serialized, in_tree, out_tree_flat), out_tree
-    except Exception as exc:  # a stale or damaged entry: compile again and overwrite it
+        exported, out_tree = pickle.loads(zlib.decompress(data))
+        entry = _runner(exported), out_tree
+    except Exception as exc:  # a stale or damaged entry: trace again and overwrite it
         logger.debug("drivecal: ignoring cache entry %s (%s)", path, exc)
         return False
+    try:
+        os.utime(path)  # recently used: kept by _prune
+    except OSError:
+        pass
+    return entry
 
 
-def _compile(fn: Callable, name: str, leaves: list, treedef: Any, static: dict[str, Any],
-             path: Path) -> tuple[Callable, Any] | None:
-    """Compile ``fn`` for these arguments and keep the executable at ``path``; None: use the plain call."""
-    from jax.experimental.serialize_executable import serialize
+def _export(fn: Callable, name: str, leaves: list, treedef: Any, static: dict[str, Any],
+            path: Path) -> tuple[Callable, Any] | None:
+    """Trace and lower ``fn`` for these arguments and keep the program at ``path``; None: use the plain call."""
+    import dataclasses
+
+    from jax import export
 
     out_tree = []
 
@@ -151,18 +178,17 @@ def _compile(fn: Callable, name: str, leaves: list, treedef: Any, static: dict[s
         return out_leaves
 
     try:
-        compiled = jax.jit(flat).lower(*leaves).compile()
-    except Exception as exc:  # the plain call will say what is wrong
-        logger.debug("drivecal: %s does not compile here (%s)", name, exc)
-        return None
-    try:
-        data = pickle.dumps((serialize(compiled), out_tree[0]))
+        exported = export.export(jax.jit(flat))(*leaves)
+        # The VJP hook is a closure (not needed: these calls are never differentiated).
+        exported = dataclasses.replace(exported, _get_vjp=None)
+        data = pickle.dumps((exported, out_tree[0]))
         # Only trees of tuples, lists, dicts and None come back intact (an equinox
         # Module's tree does not): anything else is not kept.
         if pickle.loads(data)[1] != out_tree[0]:
             raise TypeError(f"the output structure {out_tree[0]} does not survive pickling")
+        data = zlib.compress(data)
     except Exception as exc:
-        logger.debug("drivecal: %s cannot be kept (%s); tracing it every run", name, exc)
+        logger.debug("drivecal: %s cannot be exported (%s); tracing it every run", name, exc)
         try:
             _write(path, _UNKEPT)
         except OSError:
@@ -170,13 +196,14 @@ def _compile(fn: Callable, name: str, leaves: list, treedef: Any, static: dict[s
         return None  # the plain call, as in every later process
     try:
         _write(path, data)
+        _prune(path.parent)
     except OSError as exc:
         logger.debug("drivecal: could not save %s (%s)", path, exc)
-    return compiled, out_tree[0]
+    return _runner(exported), out_tree[0]
 
 
 def call(fn: Callable, name: str, *args: Any, **static: Any) -> Any:
-    """``fn(*args, **static)``, traced and compiled once per machine rather than once per process.
+    """``fn(*args, **static)``, traced once per machine rather than once per process.
 
     Args:
         fn: a function of arrays (pytrees of them) ``args``, traceable by ``jax.jit``,
@@ -202,7 +229,7 @@ def call(fn: Callable, name: str, *args: Any, **static: Any) -> Any:
         path = folder / f"{name}-{key[:32]}.pkl"
         entry = _load(path)
         if entry is False:
-            entry = _compile(fn, name, leaves, treedef, static, path)
+            entry = _export(fn, name, leaves, treedef, static, path)
         _LOADED[key] = entry
     entry = _LOADED[key]
     if entry is None:
@@ -210,7 +237,7 @@ def call(fn: Callable, name: str, *args: Any, **static: Any) -> Any:
     run, out_tree = entry
     try:
         out = run(*leaves)
-    except Exception as exc:  # the kept executable does not fit after all: never use it again here
+    except Exception as exc:  # the kept program does not fit after all: never use it again here
         logger.debug("drivecal: cached %s failed (%s); tracing it", name, exc)
         _LOADED[key] = None
         return fn(*args, **static)
