@@ -47,3 +47,29 @@ def test_sensitivity_jacobian_shape_and_zero_columns(truth):
     jac = np.asarray(dc.sensitivity_jacobian(truth, dc.Experiment.from_plan(dc.locked_q_step_plan())))
     assert jac.shape == (400, 4)
     assert np.all(jac[:, 1] == 0.0) and np.all(jac[:, 3] == 0.0)
+
+
+def test_identifiability_report_is_jaxterity_s(truth):
+    """identify.py repeats jaxterity's identifiability_from_jacobian (importing it loads MuJoCo): same report."""
+    import contextlib
+    import io
+
+    from drivecal.identify import COND_MAX, _jaxterity_report
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        from jaxterity.sysid.recipes import identifiability_from_jacobian
+
+    rng = np.random.default_rng(0)
+    jacs = [np.asarray(dc.sensitivity_jacobian(truth, dc.Experiment.from_plan(p)))
+            for p in (dc.default_plan(), dc.locked_q_step_plan())]
+    base = rng.normal(size=(300, 3))
+    jacs += [rng.normal(size=(200, 4)) * [1e-3, 1.0, 1e2, 1e-6],  # full rank, badly scaled
+             np.column_stack([base, base[:, 0] + 1e-5 * rng.normal(size=300)]),  # nearly confounded: weak
+             np.column_stack([base, np.zeros(300)])]  # a dead column
+    for jac in jacs:
+        names = ("R", "Ld", "Lq", "lambda_m")[: jac.shape[1]]
+        ours = _jaxterity_report(jac, names)
+        theirs = identifiability_from_jacobian(jac, names=names, cond_max=COND_MAX)
+        assert ours.singular_values == theirs.singular_values and ours.rank == theirs.rank
+        assert ours.condition_number == theirs.condition_number and ours.identifiable == theirs.identifiable
+        assert ours.weak_params == theirs.weak_params

@@ -26,9 +26,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from scipy import stats
 
+from . import traced
 from .data import BenchData
+from .distributions import t_ppf
 from .errors import DrivecalError
 from .forward import Experiment, model_experiment, predict_currents
 from .identify import Identifiability, assess_identifiability
@@ -81,6 +82,55 @@ class _Solved(eqx.Module):
     iterations: jnp.ndarray  # ()
     result_code: jnp.ndarray  # () optimistix RESULTS index
     converged: jnp.ndarray  # () bool
+    accepted: jnp.ndarray | None = None  # (max_steps, n) z after each LM step (recorded solves only)
+
+
+class _RecordingState(eqx.Module):
+    inner: Any
+    accepted: jnp.ndarray
+
+    @property
+    def f_info(self):
+        return self.inner.f_info
+
+
+class _Recording(optx.AbstractLeastSquaresSolver):
+    """A least-squares solver that also keeps ``y`` after every step (its last accepted iterate).
+
+    The iterates live in the solver state, inside the compiled graph: a host
+    callback would do the same but keeps the executable out of JAX's
+    persistent compilation cache (a ~3 s compile in every new process).
+    """
+
+    inner: optx.AbstractLeastSquaresSolver
+    steps: int = eqx.field(static=True)
+
+    @property
+    def rtol(self):
+        return self.inner.rtol
+
+    @property
+    def atol(self):
+        return self.inner.atol
+
+    @property
+    def norm(self):
+        return self.inner.norm
+
+    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
+        state = self.inner.init(fn, y, args, options, f_struct, aux_struct, tags)
+        return _RecordingState(state, jnp.zeros((self.steps,) + jnp.shape(y), jnp.result_type(y)))
+
+    def step(self, fn, y, args, options, state, tags):
+        y, inner, aux = self.inner.step(fn, y, args, options, state.inner, tags)
+        accepted = state.accepted.at[inner.num_steps - 1].set(y)
+        return y, _RecordingState(inner, accepted), aux
+
+    def terminate(self, fn, y, args, options, state, tags):
+        return self.inner.terminate(fn, y, args, options, state.inner, tags)
+
+    def postprocess(self, fn, y, aux, args, options, state, tags, result):
+        return self.inner.postprocess(fn, y, aux, args, options, state.inner, tags, result)
 
 
 def _jacobian_in_one_pass(f):
@@ -119,9 +169,11 @@ def _residual_fn(prior: MotorParams, experiment: Experiment, names: tuple[str, .
     return residual
 
 
-def _solve_one(currents, z0, prior, experiment, names, options, verbose) -> _Solved:
+def _solve_one(currents, z0, prior, experiment, names, options, record) -> _Solved:
     residual = _residual_fn(prior, experiment, names, currents)
-    solver = optx.LevenbergMarquardt(rtol=options.rtol, atol=options.atol, verbose=verbose)
+    solver = optx.LevenbergMarquardt(rtol=options.rtol, atol=options.atol)
+    if record:
+        solver = _Recording(solver, options.max_steps)
     sol = optx.least_squares(residual, solver, z0, max_steps=options.max_steps, throw=False)
     theta, dtheta_dz = from_search(prior, names, sol.value)
     # The solver's last accepted linearisation is at sol.value: its residual and
@@ -148,6 +200,7 @@ def _solve_one(currents, z0, prior, experiment, names, options, verbose) -> _Sol
         iterations=sol.stats["num_steps"],
         result_code=sol.result._value,
         converged=ok,
+        accepted=sol.state.accepted if record else None,
     )
 
 
@@ -155,26 +208,37 @@ def _solve_one(currents, z0, prior, experiment, names, options, verbose) -> _Sol
 _ITERATES: list[np.ndarray] = []
 
 
-def _record_iterates(**values):
-    # optimistix's verbose hook sees every step; keep the last accepted iterate.
-    jax.debug.callback(lambda y: _ITERATES.append(np.array(y)), values["y_last_accepted_step"][1], ordered=True)
-
-
 @functools.partial(jax.jit, static_argnames=("names", "options", "record"))
+def _solve_compiled(currents, z0, prior, experiment, names, options, record=False) -> _Solved:
+    experiment_axis = 0 if experiment.voltages.ndim == 3 else None  # static: shapes are known at trace time
+    return jax.vmap(_solve_one, in_axes=(0, 0, None, experiment_axis, None, None, None))(
+        currents, z0, prior, experiment, names, options, record
+    )
+
+
+def _solve_fields(currents, z0, prior, experiment, names, options, record):
+    solved = _solve_compiled(currents, z0, prior, experiment, names, options, record)
+    return tuple(getattr(solved, f.name) for f in dataclasses.fields(_Solved))
+
+
 def _solve_batch(currents, z0, prior, experiment, names, options, record=False) -> _Solved:
     """Fit a batch: currents (B, M, 2) A, z0 (B, n). One compiled call.
 
     The experiment is shared (arrays of M samples) or one per dataset (a
     leading B axis on every array, e.g. a fleet whose benches each measured
-    their own voltages and speed). With ``record`` the accepted iterates are
-    appended to ``_ITERATES`` (for convergence plots of single fits; it costs
-    a host callback per step).
+    their own voltages and speed). With ``record`` (single fits, B = 1) the
+    iterate after each LM step is appended to ``_ITERATES`` as a (B, n) array
+    (for convergence plots).
     """
-    verbose = _record_iterates if record else False
-    experiment_axis = 0 if experiment.voltages.ndim == 3 else None  # static: shapes are known at trace time
-    return jax.vmap(_solve_one, in_axes=(0, 0, None, experiment_axis, None, None, None))(
-        currents, z0, prior, experiment, names, options, verbose
-    )
+    fields = traced.call(_solve_fields, "solve_batch", currents, z0, prior, experiment, names=names,
+                         options=options, record=record)
+    solved = _Solved(*fields)
+    if record:
+        accepted = np.asarray(solved.accepted)
+        steps = int(np.max(np.asarray(solved.iterations), initial=0))
+        _ITERATES.extend(accepted[:, k] for k in range(steps))
+        solved = dataclasses.replace(solved, accepted=None)
+    return solved
 
 
 def _straggler_bucket(n: int, total: int) -> int:
@@ -425,7 +489,7 @@ class Calibration:
             prior=prior,
             identifiability=Identifiability.from_dict(d["identifiability"]),
             num_residuals=m,
-            t_factor=float(d.get("t_factor") or stats.t.ppf(0.975, m - len(fit_names))),
+            t_factor=float(d.get("t_factor") or t_ppf(0.975, m - len(fit_names))),
             source=d.get("source", "synthetic bench"),
             history=None if hist is None else arr(hist["values"]),
             delay_samples=int(d.get("delay_samples", 0)),
@@ -634,7 +698,7 @@ def fit_currents(
         history = from_search(prior, fit_names, np.asarray(steps), np)[0]
 
     m = experiment.num_samples * 2
-    t_factor = float(stats.t.ppf(0.975, m - len(fit_names)))
+    t_factor = float(t_ppf(0.975, m - len(fit_names)))
     b = cur.shape[0]
     estimate = np.broadcast_to(parameter_values(prior, names, np), (b, len(names))).copy()
     se = np.full((b, len(names)), np.nan)

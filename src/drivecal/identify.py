@@ -3,8 +3,8 @@
 From the sensitivity Jacobian ``J = d(predicted currents)/d(theta)`` at the
 nominal motor (forward mode: four parameters, thousands of outputs):
 
-* jaxterity's ``identifiability_from_jacobian`` gives rank, condition number
-  and weak parameters;
+* jaxterity's ``identifiability_from_jacobian`` (the same steps, ``_jaxterity_report``)
+  gives rank, condition number and weak parameters;
 * parameters whose column is zero are *dead*: the data does not move when they
   do (e.g. lambda_m on a locked rotor), named with the reason;
 * parameters that only move together with others (a null direction of J once
@@ -15,17 +15,17 @@ nominal motor (forward mode: four parameters, thousands of outputs):
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
-import io
 import math
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy import stats
 
+from . import traced
+from .distributions import t_ppf
 from .errors import DrivecalError
 from .forward import Experiment, model_experiment, predict_currents
 from .motor import ADDITIVE_SCALE, ESTIMATED, MotorParams, search_scale
@@ -46,12 +46,16 @@ CORR_MAX = 0.99
 WEAK_RELATIVE_CI = 0.5
 
 
-@functools.partial(jax.jit, static_argnames=("names",))
 def sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...] = ESTIMATED) -> jnp.ndarray:
     """``d(i_d, i_q at every sample)/d(theta)``, shape (2M, len(names)), A per unit of theta.
 
     Rows alternate i_d, i_q sample by sample (the flattening of (M, 2)).
     """
+    return traced.call(_sensitivity_jacobian, "sensitivity_jacobian", motor, experiment, names=tuple(names))
+
+
+@functools.partial(jax.jit, static_argnames=("names",))
+def _sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...]) -> jnp.ndarray:
     theta = motor.vector(names)
 
     def currents(th):
@@ -163,13 +167,52 @@ class Identifiability:
         )
 
 
-def _jaxterity_report(jacobian: np.ndarray, names: tuple[str, ...]):
-    # Importing the recipes pulls in MuJoCo, which print()s a warning; keep it
-    # off our stdout (the CLI's --json output must stay parseable).
-    with contextlib.redirect_stdout(io.StringIO()):
-        from jaxterity.sysid.recipes import identifiability_from_jacobian
+class _Report(NamedTuple):
+    """What ``jaxterity.sysid.recipes.identifiability_from_jacobian`` reports (the fields used here)."""
 
-    return identifiability_from_jacobian(jacobian, names=names, cond_max=COND_MAX)
+    singular_values: tuple[float, ...]
+    rank: int
+    condition_number: float
+    identifiable: bool
+    weak_params: tuple[str, ...]
+
+
+def _jaxterity_report(jacobian: np.ndarray, names: tuple[str, ...], *, weak_var_ratio: float = 1e3) -> _Report:
+    """jaxterity's ``identifiability_from_jacobian(jacobian, names, cond_max=COND_MAX)``, step for step.
+
+    Importing ``jaxterity.sysid`` loads MuJoCo (1.5 s per process) for a few
+    lines of NumPy; tests/test_identify.py holds this copy equal to jaxterity's.
+    """
+    jac = np.asarray(jacobian, dtype=np.float64)
+    if jac.ndim != 2:
+        jac = jac.reshape(jac.shape[0], -1)
+    if jac.shape[1] != len(names):
+        raise DrivecalError(f"identifiability: Jacobian has {jac.shape[1]} parameter columns but "
+                            f"{len(names)} names were given.")
+    # Column-normalise so conditioning measures relative, not unit-scale, spread.
+    col_norm = np.linalg.norm(jac, axis=0)
+    col_norm = np.where(col_norm > 0, col_norm, 1.0)
+    jn = jac / col_norm
+    sv = np.linalg.svd(jn, compute_uv=False)
+    sv_max = float(sv[0]) if sv.size else 0.0
+    tol = max(jn.shape) * np.finfo(float).eps * sv_max
+    rank = int(np.sum(sv > tol))
+    sv_min = float(sv[rank - 1]) if rank > 0 else 0.0
+    condition_number = float(sv_max / sv_min) if sv_min > 0 else float("inf")
+    # Marginal variance of each (normalised) parameter: large means weakly excited.
+    weak: tuple[str, ...] = ()
+    if rank == jn.shape[1] and jn.shape[1] > 0:
+        var = np.diag(np.linalg.pinv(jn.T @ jn))
+        ref = float(np.min(var))
+        if ref > 0:
+            weak = tuple(names[i] for i in range(len(names)) if var[i] > weak_var_ratio * ref)
+    return _Report(
+        singular_values=tuple(float(v) for v in sv),
+        rank=rank,
+        condition_number=condition_number,
+        identifiable=rank == len(names) and condition_number <= COND_MAX,
+        weak_params=weak,
+    )
 
 
 def structural_reason(name: str, experiment: Experiment) -> str | None:
@@ -322,7 +365,7 @@ def assess_identifiability(
         sd = np.sqrt(np.diag(cov_rel))
         corr = cov_rel / np.outer(sd, sd) - np.eye(len(idx))
         paired[idx] = np.max(np.abs(corr), axis=1) if len(idx) > 1 else 0.0
-    t_factor = float(stats.t.ppf(0.975, max(m - len(fit_names), 1)))
+    t_factor = float(t_ppf(0.975, max(m - len(fit_names), 1)))
     weak = [n for n in report.weak_params if n in fit_names]
     theta = np.asarray(motor.vector(names))
     for i, n in enumerate(names):

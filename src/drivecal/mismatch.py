@@ -20,8 +20,8 @@ import dataclasses
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
+from .distributions import chi2_sf
 from .forward import Experiment, model_experiment, predict_currents
 from .identify import sensitivity_jacobian
 from .motor import MotorParams
@@ -112,7 +112,7 @@ def unmodelled_effects(
     threshold = ALPHA / max(len(tests), 1)
     for effect, params, what, signature in tests:
         statistic, dof = _score(residual, signature, fitted, sigma_hat)
-        p = float(stats.chi2.sf(statistic, dof)) if dof else float("nan")
+        p = float(chi2_sf(statistic, dof)) if dof else float("nan")
         suspected = bool(dof and p < threshold)
         fix = ("raise 'delay_samples' (motor file) or --delay" if effect == "delay"
                else "add " + ", ".join(params) + " to 'estimate' (motor file) or --estimate")

@@ -30,7 +30,8 @@ from __future__ import annotations
 from typing import Any, Sequence
 
 import numpy as np
-from scipy import stats
+
+from .distributions import chi2_sf
 
 #: sigma_hat above this multiple of the stated sensor noise means mismatch.
 SIGMA_RATIO_MAX = 1.5
@@ -65,7 +66,7 @@ def ljung_box(x: np.ndarray, lags: int = WHITENESS_LAGS) -> tuple[Any, Any]:
         r = r / denom[..., None]
         q = n * (n + 2) * np.sum(r**2 / (n - np.arange(1, lags + 1)), axis=-1)
     q = np.where(denom > 0, q, np.nan)
-    p = stats.chi2.sf(q, lags)
+    p = chi2_sf(q, lags)
     return (float(q), float(p)) if x.ndim == 1 else (q, p)
 
 
