@@ -1,8 +1,8 @@
 """The segment-wise rollout equals the one-scan rollout: same RK4 recurrence, computed in another order.
 
 ``Experiment.segments`` lets the rollout integrate each segment on its own
-(currents only where the speed is known) and, with ``parallel_tangents``,
-build the Jacobian by a parallel prefix scan. Both must agree with the
+(currents only where the speed is known) and, with ``linearised_tangents``,
+build the Jacobian from the steps linearised all at once. Both must agree with the
 sequential scan over all samples (``segments=None``) to rounding, value and
 Jacobian, on every kind of segment and bench effect.
 """
@@ -93,9 +93,9 @@ def test_segmentwise_rollout_equals_one_scan(case):
     theta = motor.vector(NAMES)
     ref, ref_jac = _states_and_jacobian(theta, motor, dataclasses.replace(experiment, segments=None), keep)
     assert np.max(np.abs(np.asarray(ref[:, :2]))) > 1.0  # currents of amperes flow
-    for parallel in (True, False):
-        states, jac = _states_and_jacobian(theta, motor, dataclasses.replace(experiment, parallel_tangents=parallel),
-                                           keep)
+    for linearised in (True, False):
+        states, jac = _states_and_jacobian(theta, motor,
+                                           dataclasses.replace(experiment, linearised_tangents=linearised), keep)
         np.testing.assert_allclose(states, ref, rtol=0, atol=1e-10)
         # d state / d ln(theta): every column in the state's own unit
         np.testing.assert_allclose(jac * theta, ref_jac * theta, rtol=0, atol=1e-10)
@@ -137,13 +137,13 @@ def test_batched_experiments_equal_one_scan():
         return jax.vmap(one)(experiment)
 
     ref = sweep(dataclasses.replace(stacked, segments=None))
-    for parallel in (True, False):
-        got = sweep(dataclasses.replace(stacked, parallel_tangents=parallel))
+    for linearised in (True, False):
+        got = sweep(dataclasses.replace(stacked, linearised_tangents=linearised))
         np.testing.assert_allclose(got * theta, ref * theta, rtol=0, atol=1e-10)
     assert not np.allclose(ref[0], ref[1])
 
 
-def test_parallel_tangents_differentiate_twice():
+def test_linearised_tangents_differentiate_twice():
     """Forward over forward (the D-optimal design's derivative of the Jacobian by the voltages)."""
     motor, experiment, _ = CASES["one-sample segment"]
     theta = motor.vector(NAMES)
@@ -158,5 +158,5 @@ def test_parallel_tangents_differentiate_twice():
         return jax.jvp(lambda s: jacobian_norm(s, exp), (1.0,), (1.0,))
 
     ref = derivative(dataclasses.replace(experiment, segments=None))
-    got = derivative(dataclasses.replace(experiment, parallel_tangents=True))
+    got = derivative(dataclasses.replace(experiment, linearised_tangents=True))
     np.testing.assert_allclose(got, ref, rtol=1e-10)

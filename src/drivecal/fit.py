@@ -136,8 +136,8 @@ def _solve_one(currents, z0, prior, experiment, names, options, verbose) -> _Sol
     )
 
 
-#: Largest batch whose Jacobian sweeps use ``Experiment.parallel_tangents`` (measured crossover: ~4 fits).
-PARALLEL_TANGENTS_MAX_BATCH = 2
+#: Largest batch whose Jacobian sweeps use ``Experiment.linearised_tangents`` (measured crossover: ~4).
+LINEARISED_TANGENTS_MAX_BATCH = 2
 
 #: Accepted LM iterates of the last recorded solve (see ``_solve_batch(record=True)``).
 _ITERATES: list[np.ndarray] = []
@@ -160,9 +160,10 @@ def _solve_batch(currents, z0, prior, experiment, names, options, record=False) 
     """
     verbose = _record_iterates if record else False
     experiment_axis = 0 if experiment.voltages.ndim == 3 else None  # static: shapes are known at trace time
-    # Jacobian sweeps: the parallel prefix scan of the linearised steps is several times faster for one
-    # or two fits; from a few fits up, forward mode through the scans wins (less memory traffic).
-    experiment = dataclasses.replace(experiment, parallel_tangents=currents.shape[0] <= PARALLEL_TANGENTS_MAX_BATCH)
+    # Jacobian sweeps from the linearised steps are several times faster for one or two fits; from a
+    # few fits up, forward mode through the scans wins (less memory traffic).
+    experiment = dataclasses.replace(experiment,
+                                     linearised_tangents=currents.shape[0] <= LINEARISED_TANGENTS_MAX_BATCH)
     return jax.vmap(_solve_one, in_axes=(0, 0, None, experiment_axis, None, None, None))(
         currents, z0, prior, experiment, names, options, verbose
     )

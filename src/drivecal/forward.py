@@ -3,13 +3,16 @@
 All segments of an experiment are laid end to end in one sample axis of length
 M, with a flag marking where each segment starts (the state is reset there to
 the segment's initial state). The rollout follows the segment layout (static,
-``Experiment.segments``): where the rotor speed is known (locked rotor, or a
-measured speed as input) and there is no dead time, the currents obey a linear
-recurrence ``i_(k+1) = M_k i_k + n_k`` whose maps are built for all samples at
-once and composed by ``jax.lax.associative_scan`` (no sequential loop); a free
-spin-up with simulated speed is a ``jax.lax.scan`` over its own samples only.
-Without a layout (or with dead time) one scan covers the whole sample axis.
-Everything ``jit``s, ``vmap``s and differentiates (``jax.jacfwd``) cleanly.
+``Experiment.segments``), one ``jax.lax.scan`` per segment over its own
+samples: where the rotor speed is known (locked rotor, or a measured speed as
+input) only the two currents are integrated, and a free spin-up with
+simulated speed integrates currents and speed (the angle only when asked for).
+The parameter-only arithmetic is done once, outside the loops
+(``motor.dq_coefficients``). Derivatives come either from forward mode
+through the scans or, for a single motor, from the linearised steps
+(``Experiment.linearised_tangents``). Without a layout (or with dead time,
+which couples the currents to the angle) one scan covers the whole sample
+axis. Everything ``jit``s, ``vmap``s and differentiates (``jax.jacfwd``).
 
 Integration: classical RK4 with one step per sample period, the input held
 between samples exactly as the inverter holds it. At 20 kHz and millisecond
@@ -71,10 +74,10 @@ class Experiment(eqx.Module):
         segments: the segment layout (static): ``(start, stop, kind)`` per
             segment, samples ``start:stop``, ``kind`` one of :data:`SEGMENT_KINDS`;
             None when unknown (the rollout is then one scan over all samples).
-        parallel_tangents: derivatives of the segment-wise rollout by a
-            parallel prefix scan of the linearised steps (static; fastest for
-            one motor), else by forward mode through the scans (fastest in
-            large ``vmap``-ped batches); same values either way.
+        linearised_tangents: derivatives of the segment-wise rollout from
+            the steps linearised all at once (static; fastest for one motor),
+            else by forward mode through the scans (fastest in ``vmap``-ped
+            batches of more than a few motors); same values either way.
     """
 
     voltages: jnp.ndarray
@@ -92,7 +95,7 @@ class Experiment(eqx.Module):
     thermal: bool = eqx.field(static=True, default=False)
     dead_time_substeps: int = eqx.field(static=True, default=4)
     segments: tuple[tuple[int, int, str], ...] | None = eqx.field(static=True, default=None)
-    parallel_tangents: bool = eqx.field(static=True, default=True)
+    linearised_tangents: bool = eqx.field(static=True, default=True)
 
     @property
     def num_samples(self) -> int:
@@ -354,7 +357,7 @@ def _linear_segment(motor: MotorParams, experiment: Experiment, start: int, stop
     theta = jnp.concatenate([x0[3:4], x0[3] + jnp.cumsum(increments)])
     c, per_sample = _split_coefficients(_segment_coefficients(motor, experiment, start, stop), experiment.thermal)
     inputs = (experiment.voltages[start:stop, 0], experiment.voltages[start:stop, 1]) + stages + per_sample
-    scan = _scan_parallel_tangents if experiment.parallel_tangents else _scan_states
+    scan = _scan_linearised_tangents if experiment.linearised_tangents else _scan_states
     i_d, i_q = scan(functools.partial(_linear_step, experiment.sample_period, experiment.thermal), c,
                     (x0[0], x0[1]), inputs)
     return jnp.stack([i_d, i_q, w, theta], axis=1)[:, :keep]
@@ -384,7 +387,7 @@ def _free_segment(motor: MotorParams, experiment: Experiment, start: int, stop: 
     c, per_sample = _split_coefficients(_segment_coefficients(motor, experiment, start, stop), experiment.thermal)
     inputs = (experiment.voltages[start:stop, 0], experiment.voltages[start:stop, 1]) + per_sample
     x0 = tuple(experiment.initial_state[start, i] for i in range(dims))
-    scan = _scan_parallel_tangents if experiment.parallel_tangents else _scan_states
+    scan = _scan_linearised_tangents if experiment.linearised_tangents else _scan_states
     states = scan(functools.partial(_free_step, experiment.sample_period, experiment.thermal), c, x0, inputs)
     return jnp.stack(states[:keep], axis=1)
 
@@ -414,28 +417,30 @@ def _scan_states(step: Any, params: Any, x0: tuple, inputs: tuple) -> tuple:
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
-def _scan_parallel_tangents(step: Any, params: Any, x0: tuple, inputs: tuple) -> tuple:
-    """``_scan_states`` whose tangents come from a parallel prefix scan instead of the sequential loop.
+def _scan_linearised_tangents(step: Any, params: Any, x0: tuple, inputs: tuple) -> tuple:
+    """``_scan_states`` whose tangents come from the linearised steps, not through the loop.
 
-    Forward mode through a scan carries the tangents step by step. Here the
-    value is the same scan, and its tangents solve the linearised recurrence
-    ``dx_(k+1) = A_k dx_k + b_k``, with ``A_k = d step / d x`` and ``b_k`` the
-    step's derivative along the parameters' and inputs' tangents, both built
-    for every sample at once at the states of the value, and composed by
-    ``jax.lax.associative_scan``. The same derivative as forward mode through
-    the loop (chain rule in another order: rounding, ~1e-15 relative), several
-    times faster for one motor. In large ``vmap``-ped batches the arrays of
-    every ``A_k`` and ``b_k`` cost more memory traffic than the loop saves:
-    ``Experiment.parallel_tangents`` picks.
+    Forward mode through a scan evaluates the step's derivative inside the
+    loop; with 4 tangents the loop body moves several kilobytes per step and
+    XLA:CPU runs it op by op (~3 us a step). Here the value is the plain scan
+    (a small loop XLA compiles whole), and the tangents solve the linearised
+    recurrence ``dx_(k+1) = A_k dx_k + b_k``: ``A_k = d step / d x`` and
+    ``b_k``, the step's derivative along the parameters' and inputs'
+    tangents, are built for every sample at once (vectorised, no loop) at the
+    states of the value, then a d x d recurrence runs as another small loop.
+    The same derivative as forward mode through the loop (chain rule in
+    another order: ~1e-15 relative), ~5x faster for one motor. In large
+    ``vmap``-ped batches the arrays of every ``A_k`` and ``b_k`` cost more
+    memory traffic than they save: ``Experiment.linearised_tangents`` picks.
     """
     return _scan_states(step, params, x0, inputs)
 
 
-@functools.partial(_scan_parallel_tangents.defjvp, symbolic_zeros=True)
-def _scan_parallel_tangents_jvp(step, primals, tangents):
+@functools.partial(_scan_linearised_tangents.defjvp, symbolic_zeros=True)
+def _scan_linearised_tangents_jvp(step, primals, tangents):
     params, x0, inputs = primals
     d_params, d_x0, d_inputs = tangents
-    xs = _scan_parallel_tangents(step, params, x0, inputs)
+    xs = _scan_linearised_tangents(step, params, x0, inputs)
     dims = len(x0)
     dx0 = jnp.stack([jnp.zeros(()) if _is_zero(t) else t for t in d_x0])
     if xs[0].shape[0] == 1:
@@ -448,15 +453,15 @@ def _scan_parallel_tangents_jvp(step, primals, tangents):
     def step_k(x):
         return step(params, x, u_k)
 
-    zero, one = jnp.zeros_like(x_k[0]), jnp.ones_like(x_k[0])
-    columns = [jax.jvp(step_k, (x_k,), (tuple(one if i == j else zero for i in range(dims)),))[1]
-               for j in range(dims)]
-    maps = jnp.stack([jnp.stack(col, axis=-1) for col in columns], axis=-1)  # (N-1, d, d): A_k
-    forcing = jnp.stack(_jvp_nonzero(lambda p, u: step(p, x_k, u), (params, u_k), (d_params, du_k), x_k), -1)
-    # Fold dx_0 into the first step: the prefix offsets are then dx_1 .. dx_(N-1).
-    forcing = forcing.at[0].add(maps[0] @ dx0)
-    dxs = jnp.concatenate([dx0[None], _compose_affine(maps, forcing)], axis=0)
-    return xs, tuple(dxs[:, i] for i in range(dims))
+    # A_k column by column, the unit directions as one vmapped axis: shape (d, d, N-1), A[i, j, k].
+    basis = jnp.eye(dims)
+    maps = jnp.stack(jax.vmap(lambda e: jax.jvp(step_k, (x_k,), (tuple(jnp.broadcast_to(e[i], x_k[0].shape)
+                                                                       for i in range(dims)),))[1])(basis))
+    forcing = jnp.stack(_jvp_nonzero(lambda p, u: step(p, x_k, u), (params, u_k), (d_params, du_k), x_k))
+    # Fold dx_0 into the first step: the recurrence from zero then gives dx_1 .. dx_(N-1).
+    forcing = forcing.at[:, 0].add(maps[:, :, 0] @ dx0)
+    dxs = jnp.concatenate([dx0[:, None], _solve_linear_recurrence(maps, forcing)], axis=1)
+    return xs, tuple(dxs[i] for i in range(dims))
 
 
 def _is_zero(tangent: Any) -> bool:
@@ -483,17 +488,19 @@ def _jvp_nonzero(f: Any, primals: tuple, tangents: tuple, like: tuple) -> tuple:
     return jax.jvp(g, tuple(leaves[i] for i in active), tuple(d_leaves[i] for i in active))[1]
 
 
-def _compose_affine(maps: jnp.ndarray, offsets: jnp.ndarray) -> jnp.ndarray:
-    """Offsets of the prefix compositions of ``x -> maps[k] @ x + offsets[k]``, shape (K, d).
+def _solve_linear_recurrence(maps: jnp.ndarray, offsets: jnp.ndarray) -> jnp.ndarray:
+    """``x_1 .. x_K`` of ``x_(k+1) = maps[:, :, k] @ x_k + offsets[:, k]`` from ``x_0 = 0``, shape (d, K).
 
-    Row k is ``x_(k+1)`` of ``x_(k+1) = maps[k] @ x_k + offsets[k]`` from ``x_0 = 0``
-    (``maps`` (K, d, d), ``offsets`` (K, d)), by a parallel prefix scan.
+    ``maps`` (d, d, K), ``offsets`` (d, K). A sequential scan: its body (a
+    d x d product) moves well under a kilobyte per step, which XLA:CPU runs as
+    one compiled loop; measured faster here than a ``jax.lax.associative_scan``
+    of the affine maps (log-depth, but many small operations per level).
     """
-    def compose(earlier, later):
-        (m1, n1), (m2, n2) = earlier, later
-        return m2 @ m1, jnp.einsum("...ij,...j->...i", m2, n1) + n2
+    def body(x, step):
+        x_next = step[0] @ x + step[1]
+        return x_next, x_next
 
-    return jax.lax.associative_scan(compose, (maps, offsets))[1]
+    return jax.lax.scan(body, jnp.zeros(maps.shape[0]), (jnp.moveaxis(maps, 2, 0), offsets.T))[1].T
 
 
 def _rollout_sequential(motor: MotorParams, experiment: Experiment, keep: int) -> jnp.ndarray:
