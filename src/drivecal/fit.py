@@ -204,6 +204,9 @@ def _solve_one(currents, z0, prior, experiment, names, options, record) -> _Solv
     )
 
 
+#: Largest batch whose Jacobian sweeps use ``Experiment.linearised_tangents`` (measured crossover: ~4).
+LINEARISED_TANGENTS_MAX_BATCH = 2
+
 #: Accepted LM iterates of the last recorded solve (see ``_solve_batch(record=True)``).
 _ITERATES: list[np.ndarray] = []
 
@@ -230,6 +233,10 @@ def _solve_batch(currents, z0, prior, experiment, names, options, record=False) 
     iterate after each LM step is appended to ``_ITERATES`` as a (B, n) array
     (for convergence plots).
     """
+    # Jacobian sweeps from the linearised steps are several times faster for one or two fits; from a
+    # few fits up, forward mode through the scans wins (less memory traffic).
+    experiment = dataclasses.replace(experiment,
+                                     linearised_tangents=currents.shape[0] <= LINEARISED_TANGENTS_MAX_BATCH)
     fields = traced.call(_solve_fields, "solve_batch", currents, z0, prior, experiment, names=names,
                          options=options, record=record)
     solved = _Solved(*fields)

@@ -17,7 +17,7 @@ conformance test in ``tests/test_motor.py`` holds the two together.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -154,6 +154,75 @@ class MotorParams(eqx.Module):
         return {f.name: float(getattr(self, f.name)) for f in dataclasses.fields(self)}
 
 
+class DqCoefficients(NamedTuple):
+    """The dq equations' parameter groups, each computed once from a motor (SI units).
+
+    With them the equations are sums of products (no division), and under
+    ``jax.jvp`` a parameter's tangent meets each group once, outside any time
+    loop, instead of at every stage of every step. Any field may be an array
+    (e.g. ``r_ld``, ``r_lq`` per sample when R follows the temperature).
+
+    Attributes:
+        inv_ld: 1 / Ld (1/H).
+        r_ld: R / Ld (1/s).
+        wq_ld: pole_pairs * Lq / Ld (-), times ``w_m * i_q``.
+        inv_lq: 1 / Lq (1/H).
+        r_lq: R / Lq (1/s).
+        wd_lq: pole_pairs * Ld / Lq (-), times ``w_m * i_d``.
+        wf_lq: pole_pairs * lambda_m / Lq (A), times ``w_m``.
+        tq_j: 1.5 * pole_pairs * lambda_m / J (1/(A*s^2)), times ``i_q``.
+        tr_j: 1.5 * pole_pairs * (Ld - Lq) / J (1/(A^2*s^2)), times ``i_d * i_q``.
+        b_j: B / J (1/s).
+        load_j: T_load / J (rad/s^2).
+    """
+
+    inv_ld: Any
+    r_ld: Any
+    wq_ld: Any
+    inv_lq: Any
+    r_lq: Any
+    wd_lq: Any
+    wf_lq: Any
+    tq_j: Any
+    tr_j: Any
+    b_j: Any
+    load_j: Any
+
+
+def dq_coefficients(motor: MotorParams) -> DqCoefficients:
+    """The parameter groups of the dq equations of ``motor`` (see :class:`DqCoefficients`)."""
+    p, ld, lq, j = motor.pole_pairs, motor.Ld, motor.Lq, motor.J
+    return DqCoefficients(
+        inv_ld=1.0 / ld,
+        r_ld=motor.R / ld,
+        wq_ld=p * lq / ld,
+        inv_lq=1.0 / lq,
+        r_lq=motor.R / lq,
+        wd_lq=p * ld / lq,
+        wf_lq=p * motor.lambda_m / lq,
+        tq_j=1.5 * p * motor.lambda_m / j,
+        tr_j=1.5 * p * (ld - lq) / j,
+        b_j=motor.B / j,
+        load_j=motor.T_load / j,
+    )
+
+
+def dq_derivatives_from(coefficients: DqCoefficients, state: Any, v_dq: Any, locked: Any) -> tuple:
+    """Time derivative of the PMSM state from precomputed :func:`dq_coefficients`.
+
+    The equations of the module docstring, divided through by Ld, Lq and J.
+    Arguments and result as :func:`dq_derivatives`.
+    """
+    c = coefficients
+    i_d, i_q, w_m = state[0], state[1], state[2]
+    v_d, v_q = v_dq[0], v_dq[1]
+    di_d = c.inv_ld * v_d - c.r_ld * i_d + c.wq_ld * w_m * i_q
+    di_q = c.inv_lq * v_q - c.r_lq * i_q - c.wd_lq * w_m * i_d - c.wf_lq * w_m
+    free = 1.0 - jnp.asarray(locked, dtype=float)
+    dw_m = free * (c.tq_j * i_q + c.tr_j * i_d * i_q - c.b_j * w_m - c.load_j)
+    return di_d, di_q, dw_m, free * w_m
+
+
 def dq_derivatives(state: Any, v_dq: Any, motor: MotorParams, locked: Any) -> tuple:
     """Time derivative of the PMSM state.
 
@@ -169,15 +238,7 @@ def dq_derivatives(state: Any, v_dq: Any, motor: MotorParams, locked: Any) -> tu
         as a tuple (``jnp.stack`` it for an array). Keeping the four
         components apart lets a batched rollout work on contiguous arrays.
     """
-    i_d, i_q, w_m = state[0], state[1], state[2]
-    v_d, v_q = v_dq[0], v_dq[1]
-    w_e = motor.pole_pairs * w_m
-    di_d = (v_d - motor.R * i_d + w_e * motor.Lq * i_q) / motor.Ld
-    di_q = (v_q - motor.R * i_q - w_e * (motor.Ld * i_d + motor.lambda_m)) / motor.Lq
-    torque = electromagnetic_torque(i_d, i_q, motor)
-    free = 1.0 - jnp.asarray(locked, dtype=float)
-    dw_m = free * (torque - motor.B * w_m - motor.T_load) / motor.J
-    return di_d, di_q, dw_m, free * w_m
+    return dq_derivatives_from(dq_coefficients(motor), state, v_dq, locked)
 
 
 def resistance_at(motor: MotorParams, temperature: Any) -> Any:
@@ -228,11 +289,6 @@ def to_search(motor: MotorParams, names: tuple[str, ...], theta: Any) -> Any:
     theta = np.asarray(theta, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(is_log, np.log(theta / theta0), (theta - theta0) / scale)
-
-
-def electromagnetic_torque(i_d: Any, i_q: Any, motor: MotorParams) -> Any:
-    """Electromagnetic torque ``1.5*p*(lambda_m*i_q + (Ld - Lq)*i_d*i_q)`` (N*m)."""
-    return 1.5 * motor.pole_pairs * (motor.lambda_m * i_q + (motor.Ld - motor.Lq) * i_d * i_q)
 
 
 DEFAULT_MOTOR = MotorParams()
