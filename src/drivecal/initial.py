@@ -31,6 +31,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from . import traced
 from .forward import Experiment
 from .motor import MotorParams
 
@@ -133,7 +134,6 @@ def _start_one(experiment: Experiment, currents, prior: MotorParams):
     return {"R": R, "Ld": l_d, "Lq": l_q, "lambda_m": lam}
 
 
-@functools.partial(jax.jit, static_argnames=("names",))
 def equation_error_start(experiment: Experiment, currents, prior: MotorParams, names: tuple[str, ...]):
     """A start for the fit of ``names`` from the data, shape (B, len(names)) (SI units).
 
@@ -147,6 +147,11 @@ def equation_error_start(experiment: Experiment, currents, prior: MotorParams, n
         Per dataset and name, the equation-error estimate, or the prior where
         the data does not determine it or it lies more than ``SPAN`` from it.
     """
+    return traced.call(_start_batch, "equation_error_start", experiment, currents, prior, names=tuple(names))
+
+
+@functools.partial(jax.jit, static_argnames=("names",))
+def _start_batch(experiment: Experiment, currents, prior: MotorParams, names: tuple[str, ...]):
     axis = 0 if experiment.voltages.ndim == 3 else None
     found = jax.vmap(_start_one, in_axes=(axis, 0, None))(experiment, currents, prior)
     columns = []
