@@ -83,7 +83,8 @@ def _identifiability_lines(run: drivecal.DesignRun) -> str:
 
 def _print_demo(result: drivecal.DemoResult, console: Console) -> None:
     console.print(f"[bold]drivecal demo[/bold]: synthetic bench on the Jaxonomy engine, sensor noise "
-                  f"{result.noise * 1e3:g} mA, seed {result.seed}; start = prior = datasheet guess 30-50 % off\n")
+                  f"{result.noise * 1e3:g} mA, seed {result.seed}; prior = datasheet guess 30-50 % off, "
+                  "search started from an equation-error estimate of the data (column 'initial')\n")
     for run in (result.default, result.poor):
         console.print(_identifiability_lines(run))
         console.print(_design_table(run, result.truth))

@@ -85,7 +85,23 @@ def _settings() -> str:
                  c.jax_numpy_dtype_promotion))
 
 
+#: (name, tree, static arguments, leaf shapes and dtypes) -> key: hashing the key anew costs ~1 ms a call.
+_KEYS: dict[tuple, str] = {}
+
+
 def _key(name: str, leaves: list, treedef: Any, static: dict[str, Any]) -> str:
+    try:
+        quick = (name, treedef, tuple(sorted(static.items())),
+                 tuple((np.shape(x), np.result_type(x), getattr(x, "weak_type", False)) for x in leaves))
+        hash(quick)
+    except TypeError:  # an unhashable static argument: no memo
+        return _full_key(name, leaves, treedef, static)
+    if quick not in _KEYS:
+        _KEYS[quick] = _full_key(name, leaves, treedef, static)
+    return _KEYS[quick]
+
+
+def _full_key(name: str, leaves: list, treedef: Any, static: dict[str, Any]) -> str:
     h = hashlib.sha256(_fingerprint().encode())
     h.update(_settings().encode())
     h.update(f"\n{name}\n{treedef}\n{sorted(static.items())!r}\n".encode())
