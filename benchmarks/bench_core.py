@@ -182,29 +182,25 @@ def main() -> None:
 
     # fleet: units scattered +-5 % around the nominal motor, fitted from the nominal
     scatter = rng.uniform(0.95, 1.05, size=(args.batch, 4))
-    fleet_experiment = experiment
     nominal = np.asarray(truth.vector(NAMES))
-    sim = jax.jit(jax.vmap(lambda th: dc.predict_currents(truth.with_vector(NAMES, th), fleet_experiment)))
-    fleet_currents = np.asarray(sim(jnp.asarray(nominal * scatter))) + rng.normal(0.0, 0.02, currents.shape)
-    fleet_fit = lambda: dc.fit_currents(experiment, fleet_currents, truth, identifiability=ident)  # noqa: E731
-    fleet_batch = fleet_fit()
-    t_fleet, _ = _median_time(fleet_fit, 2)
-    rate_fleet = args.batch / t_fleet
+
+    def fleet_rate(fleet_experiment, fleet_ident):
+        """motors/s of a batched fit of the scattered units on this experiment, and the batch."""
+        sim = jax.jit(jax.vmap(lambda th: dc.predict_currents(truth.with_vector(NAMES, th), fleet_experiment)))
+        fleet_currents = np.asarray(sim(jnp.asarray(nominal * scatter))) + rng.normal(0.0, 0.02, currents.shape)
+        fleet_fit = lambda: dc.fit_currents(fleet_experiment, fleet_currents, truth,  # noqa: E731
+                                            identifiability=fleet_ident)
+        batch = fleet_fit()
+        assert np.all(batch.converged)
+        return args.batch / _median_time(fleet_fit, 2)[0], batch
+
+    rate_fleet, fleet_batch = fleet_rate(experiment, ident)
     rows.append((f"drivecal batched fit, {args.batch} units +-5 % around nominal", rate_fleet, "motors/s",
                  rate_fleet * t_seed_fit))
-    assert np.all(fleet_batch.converged)
     # fleet benches record the speed: the spin-up is then linear in the currents (J and B drop out)
-    spinning = dc.engine_bench(dc.default_plan(), truth, record_speed=True)
-    spin_experiment = spinning.experiment()
-    spin_ident = dc.assess_identifiability(spin_experiment, truth)
-    spin_sim = jax.jit(jax.vmap(lambda th: dc.predict_currents(truth.with_vector(NAMES, th), spin_experiment)))
-    spin_currents = np.asarray(spin_sim(jnp.asarray(nominal * scatter))) + rng.normal(0.0, 0.02, currents.shape)
-    spin_fit = lambda: dc.fit_currents(spin_experiment, spin_currents, truth, identifiability=spin_ident)  # noqa: E731
-    spin_batch = spin_fit()
-    t_spin, _ = _median_time(spin_fit, 2)
-    rate_spin = args.batch / t_spin
-    rows.append((f"  same, speed measured", rate_spin, "motors/s", rate_spin * t_seed_fit))
-    assert np.all(spin_batch.converged)
+    spin_experiment = dc.engine_bench(dc.default_plan(), truth, record_speed=True).experiment()
+    rate_spin, _ = fleet_rate(spin_experiment, dc.assess_identifiability(spin_experiment, truth))
+    rows.append(("  same, speed measured", rate_spin, "motors/s", rate_spin * t_seed_fit))
 
     # (c) whole workflow
     t0 = time.perf_counter()
