@@ -34,7 +34,8 @@ from .errors import DrivecalError
 from .forward import Experiment, model_experiment, predict_currents
 from .identify import Identifiability, assess_identifiability
 from .initial import equation_error_start
-from .motor import ADDITIVE_SCALE, ESTIMATED, FIXED, NUISANCE, UNITS, MotorParams, parameter_values, from_search, to_search
+from .motor import (ADDITIVE_SCALE, ESTIMATED, FIXED, NUISANCE, UNITS, MotorParams, from_search, parameter_values,
+                    to_search)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -207,10 +208,6 @@ def _solve_one(currents, z0, prior, experiment, names, options, record) -> _Solv
 #: Largest batch whose Jacobian sweeps use ``Experiment.linearised_tangents`` (measured crossover: ~4).
 LINEARISED_TANGENTS_MAX_BATCH = 2
 
-#: Accepted LM iterates of the last recorded solve (see ``_solve_batch(record=True)``).
-_ITERATES: list[np.ndarray] = []
-
-
 @functools.partial(jax.jit, static_argnames=("names", "options", "record"))
 def _solve_compiled(currents, z0, prior, experiment, names, options, record=False) -> _Solved:
     experiment_axis = 0 if experiment.voltages.ndim == 3 else None  # static: shapes are known at trace time
@@ -229,9 +226,8 @@ def _solve_batch(currents, z0, prior, experiment, names, options, record=False) 
 
     The experiment is shared (arrays of M samples) or one per dataset (a
     leading B axis on every array, e.g. a fleet whose benches each measured
-    their own voltages and speed). With ``record`` (single fits, B = 1) the
-    iterate after each LM step is appended to ``_ITERATES`` as a (B, n) array
-    (for convergence plots).
+    their own voltages and speed). With ``record`` (single fits) ``accepted``
+    holds the iterate after each LM step (for convergence plots).
     """
     # Jacobian sweeps from the linearised steps are several times faster for one or two fits; from a
     # few fits up, forward mode through the scans wins (less memory traffic).
@@ -239,13 +235,7 @@ def _solve_batch(currents, z0, prior, experiment, names, options, record=False) 
                                      linearised_tangents=currents.shape[0] <= LINEARISED_TANGENTS_MAX_BATCH)
     fields = traced.call(_solve_fields, "solve_batch", currents, z0, prior, experiment, names=names,
                          options=options, record=record)
-    solved = _Solved(*fields)
-    if record:
-        accepted = np.asarray(solved.accepted)
-        steps = int(np.max(np.asarray(solved.iterations), initial=0))
-        _ITERATES.extend(accepted[:, k] for k in range(steps))
-        solved = dataclasses.replace(solved, accepted=None)
-    return solved
+    return _Solved(*fields)
 
 
 def _straggler_bucket(n: int, total: int) -> int:
@@ -692,15 +682,13 @@ def fit_currents(
     if not np.all(np.isfinite(z0)):
         raise DrivecalError(f"{source}: initial values of {', '.join(fit_names)} must be finite, and positive where "
                             "the parameter is (R, inductances, flux, alpha_R).")
-    _ITERATES.clear()
+    history = None
     if batched:
         solved = _solve_staged(cur, z0, prior, experiment, fit_names, options, from_data)
     else:
         solved = jax.device_get(_solve_batch(jnp.asarray(cur), jnp.asarray(z0), prior, experiment, fit_names,
                                              dataclasses.replace(options, first_pass_steps=None), record=True))
-    history = None
-    if not batched:
-        steps = [z0[0]] + [it.reshape(-1) for it in _ITERATES]
+        steps = [z0[0]] + list(np.asarray(solved.accepted)[0, : int(solved.iterations[0])])
         steps = [steps[0]] + [b for a, b in zip(steps, steps[1:]) if not np.array_equal(a, b)]
         history = from_search(prior, fit_names, np.asarray(steps), np)[0]
 
