@@ -92,7 +92,7 @@ _KEYS: dict[tuple, str] = {}
 def _key(name: str, leaves: list, treedef: Any, static: dict[str, Any]) -> str:
     try:
         quick = (name, treedef, tuple(sorted(static.items())),
-                 tuple((np.shape(x), np.result_type(x), getattr(x, "weak_type", False)) for x in leaves))
+                 tuple((np.shape(x), getattr(x, "dtype", type(x)), getattr(x, "weak_type", False)) for x in leaves))
         hash(quick)
     except TypeError:  # an unhashable static argument: no memo
         return _full_key(name, leaves, treedef, static)
