@@ -33,7 +33,7 @@ from .distributions import t_ppf
 from .errors import DrivecalError
 from .forward import Experiment, model_experiment, predict_currents
 from .identify import Identifiability, assess_identifiability
-from .initial import equation_error_start
+from .initial import start_from_data
 from .motor import (ADDITIVE_SCALE, ESTIMATED, FIXED, NUISANCE, UNITS, MotorParams, from_search, parameter_values,
                     to_search)
 
@@ -58,7 +58,7 @@ class FitOptions:
             stop after 4), else 16.
         start: where the search starts when no ``initial`` is given: ``"data"``,
             an equation-error estimate from the recorded currents
-            (``initial.equation_error_start``; ~1 % from the optimum, so LM needs
+            (``initial.start_from_data``; ~1 % from the optimum, so LM needs
             ~4 steps instead of ~13 from a datasheet guess), or ``"prior"``.
     """
 
@@ -84,6 +84,61 @@ class _Solved(eqx.Module):
     result_code: jnp.ndarray  # () optimistix RESULTS index
     converged: jnp.ndarray  # () bool
     accepted: jnp.ndarray | None = None  # (max_steps, n) z after each LM step (recorded solves only)
+    initial: jnp.ndarray | None = None  # (len(names),) where the search started, SI units
+
+
+def _silent(**kwargs) -> None:
+    """optimistix's verbose hook, quiet."""
+
+
+class _NormalEquationsState(eqx.Module):
+    gram: jnp.ndarray  # (n, n) J^T J at the last accepted point
+    gradient: jnp.ndarray  # (n,) J^T r there
+
+
+class _NormalEquationsDescent(optx.AbstractDescent):
+    """optimistix's damped Newton (LM) descent, solved through the n x n normal equations.
+
+    ``(J^T J + lambda I) dz = -J^T r`` is the same step as optimistix's
+    ``DampedNewtonDescent``, which QR-factors the (m + n) x n matrix
+    ``[J; sqrt(lambda) I]`` at every trial step. Here ``J^T J`` and ``J^T r``
+    are formed once per accepted point (``query``) and every trial step is a
+    4 x 4 Cholesky solve: in a ``vmap``-ped batch the QR of 2800 x 4 matrices
+    cost ~40 % of each LM step. In ``z`` (relative units) ``J^T J`` is well
+    conditioned (the covariance already inverts it), so nothing is lost in float64.
+    """
+
+    def init(self, y, f_info_struct):
+        n = y.shape[-1]
+        return _NormalEquationsState(jnp.zeros((n, n), y.dtype), jnp.zeros((n,), y.dtype))
+
+    def query(self, y, f_info, state):
+        del y, state
+        js = f_info.jac.as_matrix()
+        return _NormalEquationsState(js.T @ js, js.T @ f_info.residual)
+
+    def step(self, step_size, state):
+        # lambda = 1 / step_size, as optimistix's damped_newton_step (a step size of ~0 is "no step").
+        tiny = step_size <= jnp.finfo(step_size.dtype).eps
+        damping = jnp.where(tiny, jnp.finfo(step_size.dtype).max, 1.0 / jnp.where(tiny, 1.0, step_size))
+        n = state.gradient.shape[0]
+        factor = jax.scipy.linalg.cho_factor(state.gram + damping * jnp.eye(n, dtype=state.gram.dtype))
+        dz = -jax.scipy.linalg.cho_solve(factor, state.gradient)
+        ok = jnp.all(jnp.isfinite(dz))
+        return jnp.where(ok, dz, 0.0), optx.RESULTS.where(ok, optx.RESULTS.successful,
+                                                          optx.RESULTS.singular)
+
+
+class _LevenbergMarquardt(optx.AbstractGaussNewton):
+    """optimistix's Levenberg-Marquardt (classical trust region, the same damping and
+    termination) with the damped step solved by :class:`_NormalEquationsDescent`."""
+
+    rtol: float
+    atol: float
+    norm: Any = optx.max_norm
+    descent: _NormalEquationsDescent = _NormalEquationsDescent()
+    search: optx.ClassicalTrustRegion = optx.ClassicalTrustRegion()
+    verbose: Any = _silent
 
 
 class _RecordingState(eqx.Module):
@@ -172,7 +227,7 @@ def _residual_fn(prior: MotorParams, experiment: Experiment, names: tuple[str, .
 
 def _solve_one(currents, z0, prior, experiment, names, options, record) -> _Solved:
     residual = _residual_fn(prior, experiment, names, currents)
-    solver = optx.LevenbergMarquardt(rtol=options.rtol, atol=options.atol)
+    solver = _LevenbergMarquardt(rtol=options.rtol, atol=options.atol)
     if record:
         solver = _Recording(solver, options.max_steps)
     sol = optx.least_squares(residual, solver, z0, max_steps=options.max_steps, throw=False)
@@ -208,33 +263,39 @@ def _solve_one(currents, z0, prior, experiment, names, options, record) -> _Solv
 #: Largest batch whose Jacobian sweeps use ``Experiment.linearised_tangents`` (measured crossover: ~4).
 LINEARISED_TANGENTS_MAX_BATCH = 2
 
-@functools.partial(jax.jit, static_argnames=("names", "options", "record"))
-def _solve_compiled(currents, z0, prior, experiment, names, options, record=False) -> _Solved:
+@functools.partial(jax.jit, static_argnames=("names", "fit_names", "options", "record"))
+def _solve_compiled(currents, start, prior, experiment, names, fit_names, options, record=False) -> _Solved:
+    if start is None:  # static: the start comes from the data, computed in the same compiled call
+        start = start_from_data(experiment, currents, prior, names)
+    z0 = to_search(prior, fit_names, start[:, [names.index(n) for n in fit_names]], jnp)
     experiment_axis = 0 if experiment.voltages.ndim == 3 else None  # static: shapes are known at trace time
-    return jax.vmap(_solve_one, in_axes=(0, 0, None, experiment_axis, None, None, None))(
-        currents, z0, prior, experiment, names, options, record
+    solved = jax.vmap(_solve_one, in_axes=(0, 0, None, experiment_axis, None, None, None))(
+        currents, z0, prior, experiment, fit_names, options, record
     )
+    return dataclasses.replace(solved, initial=start)
 
 
-def _solve_fields(currents, z0, prior, experiment, names, options, record):
-    solved = _solve_compiled(currents, z0, prior, experiment, names, options, record)
+def _solve_fields(currents, start, prior, experiment, names, fit_names, options, record):
+    solved = _solve_compiled(currents, start, prior, experiment, names, fit_names, options, record)
     return tuple(getattr(solved, f.name) for f in dataclasses.fields(_Solved))
 
 
-def _solve_batch(currents, z0, prior, experiment, names, options, record=False) -> _Solved:
-    """Fit a batch: currents (B, M, 2) A, z0 (B, n). One compiled call.
+def _solve_batch(currents, start, prior, experiment, names, fit_names, options, record=False) -> _Solved:
+    """Fit ``fit_names`` (of ``names``) to a batch: currents (B, M, 2) A. One compiled call.
 
-    The experiment is shared (arrays of M samples) or one per dataset (a
-    leading B axis on every array, e.g. a fleet whose benches each measured
-    their own voltages and speed). With ``record`` (single fits) ``accepted``
-    holds the iterate after each LM step (for convergence plots).
+    ``start`` (B, len(names)) SI units is where each search starts, or None:
+    from the data (``initial.start_from_data``, inside the same call). The
+    experiment is shared (arrays of M samples) or one per dataset (a leading
+    B axis on every array, e.g. a fleet whose benches each measured their own
+    voltages and speed). With ``record`` (single fits) ``accepted`` holds the
+    iterate after each LM step (for convergence plots).
     """
     # Jacobian sweeps from the linearised steps are several times faster for one or two fits; from a
     # few fits up, forward mode through the scans wins (less memory traffic).
     experiment = dataclasses.replace(experiment,
                                      linearised_tangents=currents.shape[0] <= LINEARISED_TANGENTS_MAX_BATCH)
-    fields = traced.call(_solve_fields, "solve_batch", currents, z0, prior, experiment, names=names,
-                         options=options, record=record)
+    fields = traced.call(_solve_fields, "solve_batch", currents, start, prior, experiment, names=names,
+                         fit_names=fit_names, options=options, record=record)
     return _Solved(*fields)
 
 
@@ -246,20 +307,20 @@ def _straggler_bucket(n: int, total: int) -> int:
     return min(size, total)
 
 
-def _solve_staged(currents, z0, prior, experiment, names, options: FitOptions, from_data: bool) -> _Solved:
+def _solve_staged(currents, start, prior, experiment, names, fit_names, options: FitOptions) -> _Solved:
     """``_solve_batch`` of a batch in two passes (see ``FitOptions.first_pass_steps``); numpy results.
 
-    ``from_data``: ``z0`` is an equation-error start (``"auto"`` then takes a short first pass).
+    ``start`` as in ``_solve_batch`` (None: from the data, and ``"auto"`` then takes a short first pass).
     """
     first = options.first_pass_steps
     if first == "auto":
-        first = 6 if from_data else 16
+        first = 6 if start is None else 16
     b = currents.shape[0]
     if first is None or first >= options.max_steps or b < 2:
         one = dataclasses.replace(options, first_pass_steps=None)
-        return jax.device_get(_solve_batch(currents, z0, prior, experiment, names, one))
+        return jax.device_get(_solve_batch(currents, start, prior, experiment, names, fit_names, one))
     quick = dataclasses.replace(options, max_steps=first, first_pass_steps=None)
-    solved = jax.device_get(_solve_batch(currents, z0, prior, experiment, names, quick))
+    solved = jax.device_get(_solve_batch(currents, start, prior, experiment, names, fit_names, quick))
     again = np.flatnonzero(solved.result_code == optx.RESULTS.nonlinear_max_steps_reached._value)
     if again.size == 0:
         return solved
@@ -268,7 +329,8 @@ def _solve_staged(currents, z0, prior, experiment, names, options: FitOptions, f
     per_dataset = experiment.voltages.ndim == 3
     sub_experiment = jax.tree_util.tree_map(lambda a: a[index], experiment) if per_dataset else experiment
     full = dataclasses.replace(options, first_pass_steps=None)
-    redone = jax.device_get(_solve_batch(currents[index], z0[index], prior, sub_experiment, names, full))
+    redone = jax.device_get(_solve_batch(currents[index], solved.initial[index], prior, sub_experiment, names,
+                                         fit_names, full))
 
     def merge(a, r):
         a = np.array(a)
@@ -671,23 +733,21 @@ def fit_currents(
             "add locked d/q steps and a free spin-up."
         )
     cur = currents if batched else currents[None]
-    from_data = initial is None and options.start == "data"
-    if from_data:
-        start = np.asarray(equation_error_start(experiment, jnp.asarray(cur), prior, tuple(names)))
-    else:
-        start = _start_vector(initial, prior, names)
-        start = np.broadcast_to(start, cur.shape[:1] + (len(names),))
+    start = None  # from the data, inside the compiled solve
+    if initial is not None or options.start != "data":
+        start = np.broadcast_to(_start_vector(initial, prior, names), cur.shape[:1] + (len(names),))
+        z0 = to_search(prior, fit_names, start[:, [names.index(n) for n in fit_names]])
+        if not np.all(np.isfinite(z0)):
+            raise DrivecalError(f"{source}: initial values of {', '.join(fit_names)} must be finite, and positive "
+                                "where the parameter is (R, inductances, flux, alpha_R).")
     fit_idx = [names.index(n) for n in fit_names]
-    z0 = to_search(prior, fit_names, start[:, fit_idx])
-    if not np.all(np.isfinite(z0)):
-        raise DrivecalError(f"{source}: initial values of {', '.join(fit_names)} must be finite, and positive where "
-                            "the parameter is (R, inductances, flux, alpha_R).")
     history = None
     if batched:
-        solved = _solve_staged(cur, z0, prior, experiment, fit_names, options, from_data)
+        solved = _solve_staged(cur, start, prior, experiment, tuple(names), fit_names, options)
     else:
-        solved = jax.device_get(_solve_batch(jnp.asarray(cur), jnp.asarray(z0), prior, experiment, fit_names,
+        solved = jax.device_get(_solve_batch(cur, start, prior, experiment, tuple(names), fit_names,
                                              dataclasses.replace(options, first_pass_steps=None), record=True))
+        z0 = to_search(prior, fit_names, solved.initial[:, fit_idx])
         steps = [z0[0]] + list(np.asarray(solved.accepted)[0, : int(solved.iterations[0])])
         steps = [steps[0]] + [b for a, b in zip(steps, steps[1:]) if not np.array_equal(a, b)]
         history = from_search(prior, fit_names, np.asarray(steps), np)[0]
@@ -713,7 +773,7 @@ def fit_currents(
         iterations=np.asarray(solved.iterations),
         converged=np.asarray(solved.converged),
         result_code=np.asarray(solved.result_code),
-        initial=np.array(start),
+        initial=np.array(solved.initial),
         prior=prior,
         identifiability=ident,
         num_residuals=m,

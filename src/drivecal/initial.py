@@ -26,7 +26,6 @@ the fit (``fit.py``) is what the calibration reports.
 
 from __future__ import annotations
 
-import functools
 
 import jax
 import jax.numpy as jnp
@@ -147,11 +146,11 @@ def equation_error_start(experiment: Experiment, currents, prior: MotorParams, n
         Per dataset and name, the equation-error estimate, or the prior where
         the data does not determine it or it lies more than ``SPAN`` from it.
     """
-    return traced.call(_start_batch, "equation_error_start", experiment, currents, prior, names=tuple(names))
+    return traced.call(_start_compiled, "equation_error_start", experiment, currents, prior, names=tuple(names))
 
 
-@functools.partial(jax.jit, static_argnames=("names",))
-def _start_batch(experiment: Experiment, currents, prior: MotorParams, names: tuple[str, ...]):
+def start_from_data(experiment: Experiment, currents, prior: MotorParams, names: tuple[str, ...]):
+    """:func:`equation_error_start` as a traceable function (for use inside a compiled fit)."""
     axis = 0 if experiment.voltages.ndim == 3 else None
     found = jax.vmap(_start_one, in_axes=(axis, 0, None))(experiment, currents, prior)
     columns = []
@@ -164,3 +163,6 @@ def _start_batch(experiment: Experiment, currents, prior: MotorParams, names: tu
         trusted = jnp.isfinite(x) & (x > p / SPAN) & (x < p * SPAN)
         columns.append(jnp.where(trusted, x, p))
     return jnp.stack(columns, axis=-1)
+
+
+_start_compiled = jax.jit(start_from_data, static_argnames=("names",))

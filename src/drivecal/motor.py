@@ -282,13 +282,13 @@ def from_search(motor: MotorParams, names: tuple[str, ...], z: Any, xp: Any = jn
     return theta, xp.where(is_log, theta, scale)
 
 
-def to_search(motor: MotorParams, names: tuple[str, ...], theta: Any) -> Any:
-    """Search coordinates ``z`` of parameters ``theta`` (inverse of :func:`from_search`; numpy)."""
-    theta0 = parameter_values(motor, names, np)
-    is_log, scale = search_scale(motor, names, np)
-    theta = np.asarray(theta, dtype=float)
+def to_search(motor: MotorParams, names: tuple[str, ...], theta: Any, xp: Any = np) -> Any:
+    """Search coordinates ``z`` of parameters ``theta`` (inverse of :func:`from_search`; ``xp`` numpy by default)."""
+    theta0 = parameter_values(motor, names, xp)
+    is_log, scale = search_scale(motor, names, xp)
+    theta = xp.asarray(theta, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(is_log, np.log(theta / theta0), (theta - theta0) / scale)
+        return xp.where(is_log, xp.log(theta / theta0), (theta - theta0) / scale)
 
 
 DEFAULT_MOTOR = MotorParams()
