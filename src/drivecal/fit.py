@@ -60,10 +60,21 @@ class FitOptions:
             an equation-error estimate from the recorded currents
             (``initial.start_from_data``; ~1 % from the optimum, so LM needs
             ~4 steps instead of ~13 from a datasheet guess), or ``"prior"``.
+        step_se: also stop at an accepted point where the Gauss-Newton step
+            from it, ``(J^T J)^-1 J^T r``, measures at most this many standard
+            errors in the covariance's own metric (``sqrt(dz^T J^T J dz) /
+            sigma_hat``, which bounds every parameter's move in its SE): the
+            point is then that close to the optimum, and the step that
+            optimistix's termination would still take to confirm it (one more
+            rollout and Jacobian) is skipped. That last step is then applied
+            (the estimate lands ~1e-4 of step_se from the optimum; sigma_hat and
+            the covariance are those of the accepted point, step_se SE away).
+            0 turns both off.
     """
 
     rtol: float = 1e-5
     atol: float = 1e-5
+    step_se: float = 1e-2
     max_steps: int = 200
     first_pass_steps: int | str | None = "auto"
     start: str = "data"
@@ -131,14 +142,33 @@ class _NormalEquationsDescent(optx.AbstractDescent):
 
 class _LevenbergMarquardt(optx.AbstractGaussNewton):
     """optimistix's Levenberg-Marquardt (classical trust region, the same damping and
-    termination) with the damped step solved by :class:`_NormalEquationsDescent`."""
+    termination) with the damped step solved by :class:`_NormalEquationsDescent`,
+    and a statistical stop (``FitOptions.step_se``)."""
 
     rtol: float
     atol: float
+    step_se: float = 0.0
     norm: Any = optx.max_norm
     descent: _NormalEquationsDescent = _NormalEquationsDescent()
     search: optx.ClassicalTrustRegion = optx.ClassicalTrustRegion()
     verbose: Any = _silent
+
+    def terminate(self, fn, y, args, options, state, tags):
+        done, result = super().terminate(fn, y, args, options, state, tags)
+        if not self.step_se:
+            return done, result
+        r = state.f_info.residual
+        s2 = jnp.sum(r ** 2) / (r.shape[0] - y.shape[0])
+        close = (state.num_accepted_steps > 0) & (_gauss_newton_step(state.descent_state, s2)[1] <= self.step_se)
+        return done | close, result
+
+
+def _gauss_newton_step(state: _NormalEquationsState, s2) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """The undamped Gauss-Newton step ``(J^T J)^-1 J^T r`` (to subtract from z) and its size in
+    standard errors, ``sqrt(step^T J^T J step / s2)`` (``s2`` = sigma_hat^2; inf where not finite)."""
+    step = jnp.linalg.solve(state.gram, state.gradient)
+    size = jnp.sqrt(step @ state.gram @ step / s2)
+    return step, jnp.where(jnp.isfinite(size), size, jnp.inf)
 
 
 class _RecordingState(eqx.Module):
@@ -148,6 +178,10 @@ class _RecordingState(eqx.Module):
     @property
     def f_info(self):
         return self.inner.f_info
+
+    @property
+    def descent_state(self):
+        return self.inner.descent_state
 
 
 class _Recording(optx.AbstractLeastSquaresSolver):
@@ -227,21 +261,26 @@ def _residual_fn(prior: MotorParams, experiment: Experiment, names: tuple[str, .
 
 def _solve_one(currents, z0, prior, experiment, names, options, record) -> _Solved:
     residual = _residual_fn(prior, experiment, names, currents)
-    solver = _LevenbergMarquardt(rtol=options.rtol, atol=options.atol)
+    solver = _LevenbergMarquardt(rtol=options.rtol, atol=options.atol, step_se=options.step_se)
     if record:
         solver = _Recording(solver, options.max_steps)
     sol = optx.least_squares(residual, solver, z0, max_steps=options.max_steps, throw=False)
-    theta, dtheta_dz = from_search(prior, names, sol.value)
     # The solver's last accepted linearisation is at sol.value: its residual and
-    # Jacobian d r / d z (relative units, or per additive step: better conditioned
-    # to invert than the physical J^T J, ohms vs henries) are reused rather than
-    # recomputed (two rollouts fewer). Bit-identical to jacfwd at sol.value.
+    # J^T J in z (relative units, or per additive step: better conditioned to
+    # invert than the physical J^T J, ohms vs henries) are reused rather than
+    # recomputed. Bit-identical to jacfwd at sol.value.
+    state = sol.state.descent_state
     r = sol.state.f_info.residual
-    js = sol.state.f_info.jac.as_matrix()
-    m, n = js.shape
+    m, n = r.shape[0], sol.value.shape[0]
     rss = r @ r
     s2 = rss / (m - n)
-    cov = s2 * jnp.linalg.inv(js.T @ js) * jnp.outer(dtheta_dz, dtheta_dz)
+    # The last Gauss-Newton step, taken when it is within step_se standard errors (it then
+    # lands ~step_se * 1e-4 SE from the optimum): the statistical stop needs no confirming step.
+    step, size = _gauss_newton_step(state, s2)
+    z = jnp.where(size <= options.step_se, sol.value - step, sol.value)
+    theta = from_search(prior, names, z)[0]
+    dtheta_dz = from_search(prior, names, sol.value)[1]
+    cov = s2 * jnp.linalg.inv(state.gram) * jnp.outer(dtheta_dz, dtheta_dz)
     ok = (
         (sol.result == optx.RESULTS.successful)
         & jnp.all(jnp.isfinite(theta))
@@ -375,7 +414,7 @@ class Calibration:
         t_factor: Student-t 97.5 % quantile with m - n degrees of freedom.
         source: where the data came from.
         history: (K, n) accepted LM iterates of ``fit_names`` (SI), the start
-            first; single fits only, else None.
+            first and the estimate last; single fits only, else None.
         delay_samples: the inverter delay (samples) the fit assumed.
     """
 
@@ -751,6 +790,8 @@ def fit_currents(
         steps = [z0[0]] + list(np.asarray(solved.accepted)[0, : int(solved.iterations[0])])
         steps = [steps[0]] + [b for a, b in zip(steps, steps[1:]) if not np.array_equal(a, b)]
         history = from_search(prior, fit_names, np.asarray(steps), np)[0]
+        if not np.array_equal(history[-1], solved.theta[0]):  # the final Gauss-Newton step (FitOptions.step_se)
+            history = np.concatenate([history, solved.theta[:1]])
 
     m = experiment.num_samples * 2
     t_factor = float(t_ppf(0.975, m - len(fit_names)))
