@@ -161,7 +161,7 @@ def _failed_row(item: _Loaded, status: str, reason: str) -> dict[str, Any]:
 def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool, chunk: int) -> list[dict]:
     prior, names = motor_file.motor, motor_file.names
     delay = motor_file.delay_samples
-    experiments = [it.bench.experiment(measured_speed=measured_speed, delay_samples=delay) for it in items]
+    experiments = [it.bench.experiment(measured_speed=measured_speed, delay_samples=delay, host=True) for it in items]
     size = _bucket(len(items), chunk)
     pad = [0] * (size - len(items))  # padding repeats the first motor; its rows are dropped
     index = list(range(len(items))) + pad

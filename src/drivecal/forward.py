@@ -113,6 +113,7 @@ class Experiment(eqx.Module):
         temperatures: list[np.ndarray | float | None] | None = None,
         angles: list[np.ndarray | None] | None = None,
         delay_samples: int = 0,
+        host: bool = False,
     ) -> Experiment:
         """Lay segments end to end.
 
@@ -131,6 +132,8 @@ class Experiment(eqx.Module):
                 k at sample k + delay_samples. The first samples of a segment
                 then apply 0 V (from rest) or the first command (a segment
                 that starts moving).
+            host: keep the arrays in numpy (a fleet stacks thousands of
+                experiments: one transfer for the stack, not one per field and motor).
         """
         applied, starts, lock, x0, speed, use, temp, theta, theta0 = [], [], [], [], [], [], [], [], []
         layout, at = [], 0
@@ -159,17 +162,18 @@ class Experiment(eqx.Module):
                 use.append(np.ones(n))
                 init = np.array([init[0], init[1], w[0], init[3]])
             x0.append(np.broadcast_to(init, (n, 4)))
+        xp = np if host else jnp
         return cls(
-            voltages=jnp.asarray(np.concatenate(applied, axis=0), dtype=float),
-            locked=jnp.asarray(np.concatenate(lock)),
-            segment_start=jnp.asarray(np.concatenate(starts)),
-            initial_state=jnp.asarray(np.concatenate(x0, axis=0)),
-            sample_period=jnp.asarray(float(sample_period)),
-            speed=jnp.asarray(np.concatenate(speed, axis=0)),
-            speed_input=jnp.asarray(np.concatenate(use)),
-            temperature=jnp.asarray(np.concatenate(temp)),
-            theta_e=jnp.asarray(np.concatenate(theta)),
-            theta_e_start=jnp.asarray(np.concatenate(theta0)),
+            voltages=xp.asarray(np.concatenate(applied, axis=0), dtype=float),
+            locked=xp.asarray(np.concatenate(lock)),
+            segment_start=xp.asarray(np.concatenate(starts)),
+            initial_state=xp.asarray(np.concatenate(x0, axis=0)),
+            sample_period=xp.asarray(float(sample_period)),
+            speed=xp.asarray(np.concatenate(speed, axis=0)),
+            speed_input=xp.asarray(np.concatenate(use)),
+            temperature=xp.asarray(np.concatenate(temp)),
+            theta_e=xp.asarray(np.concatenate(theta)),
+            theta_e_start=xp.asarray(np.concatenate(theta0)),
             thermal=temperatures is not None and any(t is not None for t in temperatures),
             segments=tuple(layout),
         )
@@ -608,4 +612,5 @@ def stack_experiments(experiments: list[Experiment]) -> Experiment:
     layouts = {e.segments for e in experiments}
     flags["segments"] = layouts.pop() if len(layouts) == 1 else None
     experiments = [dataclasses.replace(e, **flags) for e in experiments]
-    return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *experiments)
+    # Stacked on the host, then one transfer per field (the experiments may hold numpy arrays).
+    return jax.tree_util.tree_map(lambda *leaves: jnp.asarray(np.stack(leaves)), *experiments)
