@@ -121,14 +121,19 @@ def _start_one(experiment: Experiment, currents, prior: MotorParams):
     c_mid = jnp.where(measured, experiment.speed[:, 1], 0.5 * (c + shift(c, 1)))
     wf = free.astype(float)
 
-    def residual(lam):
-        return y - p * (lam * u_mid + c_mid) * (Ld_use * i_d_mid + lam)
-
+    # The residual y - p (lam u + c)(Ld i_d + lam) is a0 + a1 lam + a2 lam^2 per sample, so the
+    # Gauss-Newton sums over the samples are polynomials in lam: five moments, one pass over
+    # the data, then the iterations on scalars.
+    a0 = y - p * c_mid * Ld_use * i_d_mid
+    a1 = -p * (u_mid * Ld_use * i_d_mid + c_mid)
+    a2 = -p * u_mid
+    m10, m11, m20, m12, m22 = (jnp.sum(wf * x * z) for x, z in ((a1, a0), (a1, a1), (a2, a0), (a1, a2), (a2, a2)))
     lam = jnp.asarray(prior.lambda_m, dtype=float)
     for _ in range(8):
-        r = residual(lam)
-        slope = -p * (u_mid * (Ld_use * i_d_mid + lam) + (lam * u_mid + c_mid))
-        lam = lam - jnp.sum(wf * slope * r) / jnp.sum(wf * slope**2)
+        # sum(slope * r) and sum(slope^2) with slope = a1 + 2 a2 lam.
+        slope_r = m10 + lam * (m11 + 2.0 * m20) + lam**2 * 3.0 * m12 + lam**3 * 2.0 * m22
+        slope_2 = m11 + 4.0 * lam * m12 + 4.0 * lam**2 * m22
+        lam = lam - slope_r / slope_2
     lam = jnp.where(jnp.sum(wf) > 0, lam, jnp.nan)
     return {"R": R, "Ld": l_d, "Lq": l_q, "lambda_m": lam}
 
