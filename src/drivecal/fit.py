@@ -241,8 +241,10 @@ def _jacobian_in_one_pass(f):
     def g_jvp(primals, tangents):
         (x,), (dx,) = primals, tangents
         basis = jnp.eye(x.shape[-1], dtype=x.dtype)
-        y, jac = jax.vmap(lambda t: jax.jvp(f, (x,), (t,)), out_axes=(None, -1))(basis)
-        return y, jac @ dx
+        # Jacobian rows per parameter (n, m): the layout the sweep produces (a parameter-last
+        # layout costs a transposing copy of the whole Jacobian per LM step in a batch).
+        y, rows = jax.vmap(lambda t: jax.jvp(f, (x,), (t,)), out_axes=(None, 0))(basis)
+        return y, dx @ rows
 
     return g
 
