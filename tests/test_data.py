@@ -202,3 +202,11 @@ def test_bad_motor_file_via_cli(tmp_path, capsys):
     code, err = run_cli(["design", Path(__file__).resolve().parents[1] / "examples" / "default_plan.toml",
                          "--motor", motor], capsys)
     assert_one_sentence(code, err, str(motor), "'Ld'", "inductance")
+
+
+@pytest.mark.parametrize("n", [4, 5, 1000, 1001])
+def test_partition_median_is_numpy_median(n):
+    from drivecal.data import _median
+
+    x = np.random.default_rng(n).normal(size=n)
+    assert _median(x) == np.median(x)

@@ -1,0 +1,102 @@
+"""The solver's shortcuts change the cost, not the answer.
+
+- LM steps through the 4 x 4 normal equations take optimistix LM's steps (QR of [J; sqrt(lambda) I]).
+- The statistical stop (``FitOptions.step_se``) skips the confirming step without moving the estimate.
+- The start from the data, computed inside the compiled solve, is ``initial.equation_error_start``.
+- Host-side experiments (a fleet's) are the device ones.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+import pytest
+
+import drivecal as dc
+from conftest import NOISE
+from drivecal.forward import model_experiment, stack_experiments
+from drivecal.initial import equation_error_start
+from drivecal.motor import to_search
+
+fit_module = importlib.import_module("drivecal.fit")
+
+SEEDS = 24
+
+
+@pytest.fixture(scope="module")
+def noisy_batch(clean_default):
+    rng = np.random.default_rng(11)
+    return clean_default.currents[None] + rng.normal(0.0, NOISE, (SEEDS,) + clean_default.currents.shape)
+
+
+@pytest.fixture(scope="module")
+def tight_batch(clean_default, noisy_batch, guess):
+    """The batch solved to 1e-10 without the statistical stop: the reference optimum."""
+    options = dc.FitOptions(rtol=1e-10, atol=1e-10, step_se=0.0, first_pass_steps=None)
+    return dc.fit_currents(clean_default.experiment(), noisy_batch, guess, options=options)
+
+
+def test_normal_equations_take_optimistix_lm_steps(clean_default, noisy_batch, guess):
+    """From the same start, both solvers visit the same points: same steps, same end (to rounding)."""
+    names = dc.ESTIMATED
+    experiment = model_experiment(clean_default.experiment(), guess, names)
+    start = np.asarray(equation_error_start(experiment, jnp.asarray(noisy_batch[:4]), guess, names))
+    z0 = jnp.asarray(to_search(guess, names, start))
+
+    def solve(solver):
+        def one(currents, z):
+            residual = fit_module._residual_fn(guess, experiment, names, jnp.asarray(currents))
+            sol = optx.least_squares(residual, solver, z, max_steps=100, throw=False)
+            return sol.value, sol.stats["num_steps"], sol.result._value
+
+        return jax.jit(jax.vmap(one))(jnp.asarray(noisy_batch[:4]), z0)
+
+    # At the default tolerance both take the same number of steps to the same point; at 1e-10
+    # rounding decides which noise-level trial steps are accepted, but not where they end.
+    for tol, steps_equal, atol in ((1e-5, True, 1e-10), (1e-10, False, 1e-9)):
+        ours = solve(fit_module._LevenbergMarquardt(rtol=tol, atol=tol))
+        theirs = solve(optx.LevenbergMarquardt(rtol=tol, atol=tol))
+        assert np.all(np.asarray(ours[2]) == 0) and np.all(np.asarray(theirs[2]) == 0)
+        if steps_equal:
+            np.testing.assert_array_equal(ours[1], theirs[1])
+        # z is relative: 1e-9 is ~1e-5 standard errors here.
+        np.testing.assert_allclose(ours[0], theirs[0], rtol=0, atol=atol)
+
+
+def test_statistical_stop_saves_steps_not_accuracy(clean_default, noisy_batch, guess, tight_batch):
+    cal = dc.fit_currents(clean_default.experiment(), noisy_batch, guess)
+    assert np.all(cal.converged)
+    # Within a thousandth of a standard error of the tight solve (measured: ~1e-6), same uncertainty.
+    assert np.max(np.abs(cal.estimate - tight_batch.estimate) / tight_batch.se) < 1e-3
+    np.testing.assert_allclose(cal.se, tight_batch.se, rtol=1e-6)
+    # sigma_hat is that of the accepted point, at most 0.01 SE away: rss higher by <= 0.01^2 sigma^2.
+    np.testing.assert_allclose(cal.sigma_hat, tight_batch.sigma_hat, rtol=0.5 * 0.01**2 / cal.dof)
+    assert np.median(cal.iterations) < np.median(tight_batch.iterations)
+    # Switched off, the stop is optimistix's own (Cauchy) termination: more steps.
+    plain = dc.fit_currents(clean_default.experiment(), noisy_batch, guess, options=dc.FitOptions(step_se=0.0))
+    assert np.median(cal.iterations) < np.median(plain.iterations)
+
+
+def test_start_inside_the_solve_is_the_equation_error_start(clean_default, noisy_batch, guess):
+    experiment = clean_default.experiment()
+    cal = dc.fit_currents(experiment, noisy_batch[:3], guess)
+    expected = equation_error_start(model_experiment(experiment, guess, dc.ESTIMATED), jnp.asarray(noisy_batch[:3]),
+                                    guess, dc.ESTIMATED)
+    np.testing.assert_allclose(cal.initial, np.asarray(expected), rtol=1e-12)
+
+
+def test_host_experiments_equal_device_ones(clean_default):
+    device = clean_default.experiment()
+    host = clean_default.experiment(host=True)
+    assert isinstance(host.voltages, np.ndarray) and isinstance(device.voltages, jax.Array)
+    for a, b in zip(jax.tree_util.tree_leaves(device), jax.tree_util.tree_leaves(host)):
+        np.testing.assert_array_equal(np.asarray(a), b)
+    stacked_host, stacked_device = stack_experiments([host, host]), stack_experiments([device, device])
+    assert stacked_host.segments == stacked_device.segments == device.segments
+    for a, b in zip(jax.tree_util.tree_leaves(stacked_device), jax.tree_util.tree_leaves(stacked_host)):
+        assert isinstance(b, jax.Array)
+        np.testing.assert_array_equal(a, b)
