@@ -160,3 +160,37 @@ def test_linearised_tangents_differentiate_twice():
     ref = derivative(dataclasses.replace(experiment, segments=None))
     got = derivative(dataclasses.replace(experiment, linearised_tangents=True))
     np.testing.assert_allclose(got, ref, rtol=1e-10)
+
+
+def test_locked_segments_from_constant_affine_step():
+    """Locked segments in forward mode: ``x_(k+1) = A x_k + G v_k + g`` equals the RK4 scan.
+
+    A locked rotor held at a speed (the dq coupling terms on), from a non-zero
+    state, with a chirp voltage; values, the Jacobian and its derivative along
+    the voltages (as the D-optimal design takes it).
+    """
+    n = 250
+    volts = [np.stack([waveforms.chirp(n, FS, amplitude=5.0, f_start=20.0, f_stop=1500.0, offset=1.0),
+                       np.full(n, -2.0)], 1), np.tile([0.0, 8.0], (90, 1))]
+    experiment = dc.Experiment.from_segments(volts, [True, True], 1.0 / FS,
+                                             initial_states=[[1.0, -0.5, 40.0, 0.2], np.zeros(4)])
+    motor = dc.DEFAULT_MOTOR
+    theta = motor.vector(NAMES)
+    forward_mode = dataclasses.replace(experiment, linearised_tangents=False)
+    ref, ref_jac = _states_and_jacobian(theta, motor, dataclasses.replace(experiment, segments=None), 4)
+    states, jac = _states_and_jacobian(theta, motor, forward_mode, 4)
+    np.testing.assert_allclose(states, ref, rtol=0, atol=1e-12 * np.max(np.abs(np.asarray(ref))))
+    np.testing.assert_allclose(jac * theta, ref_jac * theta, rtol=0,
+                               atol=1e-12 * np.max(np.abs(np.asarray(ref_jac * theta))))
+
+    @jax.jit
+    def derivative(exp):
+        def norm(scale):
+            scaled = dataclasses.replace(exp, voltages=exp.voltages * scale)
+            j = jax.jacfwd(lambda th: predict_currents(motor.with_vector(NAMES, th), scaled))(theta)
+            return jnp.sum((j * theta) ** 2)
+
+        return jax.jvp(norm, (1.0,), (1.0,))
+
+    np.testing.assert_allclose(derivative(forward_mode), derivative(dataclasses.replace(experiment, segments=None)),
+                               rtol=1e-11)

@@ -361,10 +361,25 @@ def _linear_segment(motor: MotorParams, experiment: Experiment, start: int, stop
     theta = jnp.concatenate([x0[3:4], x0[3] + jnp.cumsum(increments)])
     c, per_sample = _split_coefficients(_segment_coefficients(motor, experiment, start, stop), experiment.thermal)
     inputs = (experiment.voltages[start:stop, 0], experiment.voltages[start:stop, 1]) + stages + per_sample
-    scan = _scan_linearised_tangents if experiment.linearised_tangents else _scan_states
+    if experiment.linearised_tangents:
+        scan = _scan_linearised_tangents
+    elif _constant_linear_part(experiment, start, stop):
+        scan = _scan_affine_constant
+    else:
+        scan = _scan_states
     i_d, i_q = scan(functools.partial(_linear_step, experiment.sample_period, experiment.thermal), c,
                     (x0[0], x0[1]), inputs)
     return jnp.stack([i_d, i_q, w, theta], axis=1)[:, :keep]
+
+
+def _constant_linear_part(experiment: Experiment, start: int, stop: int) -> bool:
+    """Whether every RK4 step of segment ``start:stop`` has the same linear part in the currents (static).
+
+    So on a locked rotor (the speed at every stage is the segment's constant
+    initial one) with R constant (no thermal model); a measured speed changes
+    the step's coupling terms from sample to sample.
+    """
+    return not experiment.thermal and (start, stop, "locked") in (experiment.segments or ())
 
 
 def _linear_step(dt: Any, thermal: bool, c: DqCoefficients, x: tuple, u: tuple) -> tuple:
@@ -418,6 +433,46 @@ def _scan_states(step: Any, params: Any, x0: tuple, inputs: tuple) -> tuple:
         return step(params, x, u), x
 
     return jax.lax.scan(body, x0, inputs)[1]
+
+
+def _scan_affine_constant(step: Any, params: Any, x0: tuple, inputs: tuple, varying: int = 2) -> tuple:
+    """``_scan_states`` of a step affine in the state and the first ``varying`` inputs, the rest constant.
+
+    On a locked rotor (``_constant_linear_part``) the RK4 step of the
+    currents is ``x_(k+1) = A x_k + G v_k + g`` with ``v_k`` the applied
+    voltages: the speed at the stages, the only other input, is the same at
+    every sample. ``A``, ``G`` (the step's derivatives along the state and
+    voltage directions: exact, the step being affine in both) and ``g`` (the
+    step from zero state and voltage) come from the step at the first sample,
+    once per call; the loop body is then a few products per step. The same
+    RK4 recurrence, its terms summed in another order (equal to rounding).
+    Forward mode through it (``vmap``-ped Jacobian sweeps) differentiates
+    these products instead of the four RK4 stages at every step.
+    """
+    dims = len(x0)
+    dtype = inputs[0].dtype
+    constant = tuple(u[0] for u in inputs[varying:])
+
+    def step_at(x, v):
+        return step(params, x, tuple(v) + constant)
+
+    x_zero = tuple(jnp.zeros((), dtype) for _ in range(dims))
+    v_zero = tuple(jnp.zeros((), dtype) for _ in range(varying))
+
+    def unit(j, n):
+        return tuple(jnp.ones((), dtype) if i == j else jnp.zeros((), dtype) for i in range(n))
+
+    g = step_at(x_zero, v_zero)
+    # a[j][i] = A[i, j], b[j][i] = G[i, j]
+    a = [jax.jvp(lambda x: step_at(x, v_zero), (x_zero,), (unit(j, dims),))[1] for j in range(dims)]
+    b = [jax.jvp(lambda v: step_at(x_zero, v), (v_zero,), (unit(j, varying),))[1] for j in range(varying)]
+
+    def body(x, v):
+        x_next = tuple(g[i] + sum(a[j][i] * x[j] for j in range(dims)) + sum(b[j][i] * v[j] for j in range(varying))
+                       for i in range(dims))
+        return x_next, x
+
+    return jax.lax.scan(body, tuple(x0), inputs[:varying])[1]
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
