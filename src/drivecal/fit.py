@@ -59,7 +59,7 @@ class FitOptions:
         start: where the search starts when no ``initial`` is given: ``"data"``,
             an equation-error estimate from the recorded currents
             (``initial.start_from_data``; ~1 % from the optimum, so LM needs
-            ~4 steps instead of ~13 from a datasheet guess), or ``"prior"``.
+            ~3 steps instead of ~12 from a datasheet guess), or ``"prior"``.
         step_se: also stop at an accepted point where the Gauss-Newton step
             from it, ``(J^T J)^-1 J^T r``, measures at most this many standard
             errors in the covariance's own metric (``sqrt(dz^T J^T J dz) /

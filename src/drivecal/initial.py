@@ -1,7 +1,7 @@
 """A starting point for the fit from the data itself (equation error).
 
 Levenberg-Marquardt pays one rollout of the whole bench run per step, and
-from a datasheet guess 30-50 % off it needs ~13 steps; from within ~1 % it
+from a datasheet guess 30-50 % off it needs ~12 steps; from within ~1 % it
 needs 4-5. This module gets within ~1 % without any rollout, by regressions
 that read the recorded currents as regressors ("equation error"), all
 vectorised over the samples:
