@@ -651,8 +651,11 @@ def model_experiment(experiment: Experiment, motor: MotorParams, names: tuple[st
     def used(name):
         return name in names or bool(np.any(np.asarray(getattr(motor, name)) != 0.0))
 
-    return dataclasses.replace(experiment, dead_time=experiment.dead_time or used("v_dead"),
-                               phase_offsets=experiment.phase_offsets or used("offset_a") or used("offset_b"))
+    dead_time = experiment.dead_time or used("v_dead")
+    phase_offsets = experiment.phase_offsets or used("offset_a") or used("offset_b")
+    if (dead_time, phase_offsets) == (experiment.dead_time, experiment.phase_offsets):
+        return experiment
+    return dataclasses.replace(experiment, dead_time=dead_time, phase_offsets=phase_offsets)
 
 
 def stack_experiments(experiments: list[Experiment]) -> Experiment:
