@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
+from . import traced
 from .inverter import dead_time_error
 from .motor import DqCoefficients, MotorParams, dq_coefficients, dq_derivatives_from, resistance_at
 from .plan import Plan
@@ -613,6 +614,19 @@ def predict_currents(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
     """
     # The rotor angle (state 3) is written out only when phase offsets need it.
     return measured_currents(_rollout(motor, experiment, 4 if experiment.phase_offsets else 2), motor, experiment)
+
+
+def predicted_currents(motor: MotorParams, experiment: Experiment) -> np.ndarray:
+    """:func:`predict_currents` compiled, for host code: a numpy array, shape (M, 2) (A).
+
+    Called outside ``jit``, ``predict_currents`` runs op by op and compiles its
+    scans afresh on every call (~1 s each); this is one compiled call whose
+    trace is kept on disk (``traced.call``).
+    """
+    return np.asarray(traced.call(_predict_compiled, "predict_currents", motor, experiment))
+
+
+_predict_compiled = jax.jit(predict_currents)
 
 
 def measured_currents(states: jnp.ndarray, motor: MotorParams, experiment: Experiment) -> jnp.ndarray:

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from .distributions import chi2_sf
-from .forward import Experiment, model_experiment, predict_currents
+from .forward import Experiment, model_experiment, predicted_currents
 from .identify import sensitivity_jacobian
 from .motor import MotorParams
 
@@ -86,7 +86,7 @@ def unmodelled_effects(
     base = model_experiment(experiment, motor, fit_names)
     y = np.asarray(currents, dtype=float).reshape(-1)
     if predicted is None:
-        predicted = predict_currents(motor, base)
+        predicted = predicted_currents(motor, base)
     predicted = np.asarray(predicted, dtype=float).reshape(-1)
     residual = y - predicted
 
@@ -104,7 +104,7 @@ def unmodelled_effects(
         tests.append((effect, params, what, jac[:, idx]))
     if delayed_experiment is not None:
         later = model_experiment(delayed_experiment, motor, fit_names)
-        column = (np.asarray(predict_currents(motor, later)).reshape(-1) - predicted)[:, None]
+        column = (predicted_currents(motor, later).reshape(-1) - predicted)[:, None]
         tests.append(("delay", ("delay_samples",), f"more PWM/computation delay than the {delay_samples} sample(s) "
                       "assumed", column))
 

@@ -32,7 +32,7 @@ from .data import BenchData
 from .errors import DrivecalError
 from .fit import Calibration
 from .mismatch import unmodelled_effects
-from .forward import Experiment, model_experiment, predict_currents
+from .forward import Experiment, model_experiment, predicted_currents
 from .plan import Plan
 from .report import plan_to_dict
 from .verdict import residual_checks, verdict
@@ -84,7 +84,7 @@ def segment_traces(calibration: Calibration, bench: BenchData, experiment: Exper
     if experiment is None:
         experiment = bench.experiment(delay_samples=calibration.delay_samples)
     experiment = model_experiment(experiment, calibration.motor, calibration.names)
-    predicted = np.asarray(predict_currents(calibration.motor, experiment))
+    predicted = predicted_currents(calibration.motor, experiment)
     out, k = [], 0
     for seg in bench.segments:
         n = seg.num_samples
