@@ -31,7 +31,7 @@ from . import traced
 from .data import BenchData
 from .distributions import t_ppf
 from .errors import DrivecalError
-from .forward import Experiment, model_experiment, predict_currents
+from .forward import Experiment, current_parts, model_experiment, predict_current_parts
 from .identify import Identifiability, assess_identifiability
 from .initial import start_from_data
 from .motor import (ADDITIVE_SCALE, ESTIMATED, FIXED, NUISANCE, UNITS, MotorParams, from_search, parameter_values,
@@ -124,9 +124,11 @@ class _NormalEquationsDescent(optx.AbstractDescent):
         return _NormalEquationsState(jnp.zeros((n, n), y.dtype), jnp.zeros((n,), y.dtype))
 
     def query(self, y, f_info, state):
-        del y, state
-        js = f_info.jac.as_matrix()
-        return _NormalEquationsState(js.T @ js, js.T @ f_info.residual)
+        del state
+        # J's rows (n, N) per residual part, straight from the linearisation (as_matrix would join the parts).
+        rows = jax.tree_util.tree_leaves(jax.vmap(f_info.jac.mv)(jnp.eye(y.shape[-1], dtype=y.dtype)))
+        residual = jax.tree_util.tree_leaves(f_info.residual)
+        return _NormalEquationsState(sum(r @ r.T for r in rows), sum(r @ e for r, e in zip(rows, residual)))
 
     def step(self, step_size, state):
         # lambda = 1 / step_size, as optimistix's damped_newton_step (a step size of ~0 is "no step").
@@ -157,10 +159,16 @@ class _LevenbergMarquardt(optx.AbstractGaussNewton):
         done, result = super().terminate(fn, y, args, options, state, tags)
         if not self.step_se:
             return done, result
-        r = state.f_info.residual
-        s2 = jnp.sum(r ** 2) / (r.shape[0] - y.shape[0])
+        m, rss = _size_and_sum_of_squares(state.f_info.residual)
+        s2 = rss / (m - y.shape[0])
         close = (state.num_accepted_steps > 0) & (_gauss_newton_step(state.descent_state, s2)[1] <= self.step_se)
         return done | close, result
+
+
+def _size_and_sum_of_squares(residual) -> tuple[int, jnp.ndarray]:
+    """Number of residuals and their sum of squares, over the residual's parts."""
+    parts = jax.tree_util.tree_leaves(residual)
+    return sum(p.size for p in parts), sum(p @ p for p in parts)
 
 
 def _gauss_newton_step(state: _NormalEquationsState, s2) -> tuple[jnp.ndarray, jnp.ndarray]:
@@ -224,7 +232,7 @@ class _Recording(optx.AbstractLeastSquaresSolver):
 
 
 def _jacobian_in_one_pass(f):
-    """``f`` with a JVP rule that builds the whole Jacobian in one forward sweep.
+    """``f`` (to a pytree of 1-D arrays) with a JVP rule that builds the whole Jacobian in one forward sweep.
 
     optimistix linearises the residual at every LM step and then applies the
     linearisation once per parameter; through a 1000-step scan that replay is
@@ -244,19 +252,22 @@ def _jacobian_in_one_pass(f):
         # Jacobian rows per parameter (n, m): the layout the sweep produces (a parameter-last
         # layout costs a transposing copy of the whole Jacobian per LM step in a batch).
         y, rows = jax.vmap(lambda t: jax.jvp(f, (x,), (t,)), out_axes=(None, 0))(basis)
-        return y, dx @ rows
+        return y, jax.tree_util.tree_map(lambda r: dx @ r, rows)
 
     return g
 
 
 def _residual_fn(prior: MotorParams, experiment: Experiment, names: tuple[str, ...], currents: jnp.ndarray):
+    # The residuals stay in parts (i_d and i_q of each segment; see forward.predict_current_parts).
+    measured = current_parts(experiment, currents)
+
     @_jacobian_in_one_pass
     def predicted(z):
         motor = prior.with_vector(names, from_search(prior, names, z)[0])
-        return predict_currents(motor, experiment).reshape(-1)
+        return predict_current_parts(motor, experiment)
 
     def residual(z, _args):
-        return predicted(z) - currents.reshape(-1)
+        return tuple(p - y for p, y in zip(predicted(z), measured))
 
     return residual
 
@@ -272,9 +283,8 @@ def _solve_one(currents, z0, prior, experiment, names, options, record) -> _Solv
     # invert than the physical J^T J, ohms vs henries) are reused rather than
     # recomputed. Bit-identical to jacfwd at sol.value.
     state = sol.state.descent_state
-    r = sol.state.f_info.residual
-    m, n = r.shape[0], sol.value.shape[0]
-    rss = r @ r
+    m, rss = _size_and_sum_of_squares(sol.state.f_info.residual)
+    n = sol.value.shape[0]
     s2 = rss / (m - n)
     # The last Gauss-Newton step, taken when it is within step_se standard errors (it then
     # lands ~step_se * 1e-4 SE from the optimum): the statistical stop needs no confirming step.

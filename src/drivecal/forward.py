@@ -323,11 +323,14 @@ def _rollout(motor: MotorParams, experiment: Experiment, keep: int) -> jnp.ndarr
     """
     if experiment.segments is None or experiment.dead_time:
         return _rollout_sequential(motor, experiment, keep)
-    parts = []
-    for start, stop, kind in experiment.segments:
-        rollout = _free_segment if kind == "free" else _linear_segment
-        parts.append(rollout(motor, experiment, start, stop, keep))
+    parts = [jnp.stack(columns, axis=1) for columns in _segment_states(motor, experiment, keep)]
     return parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=0)
+
+
+def _segment_states(motor: MotorParams, experiment: Experiment, keep: int) -> list[tuple]:
+    """Per segment of ``experiment.segments``, its first ``keep`` state components, arrays of shape (N_s,)."""
+    return [(_free_segment if kind == "free" else _linear_segment)(motor, experiment, start, stop, keep)
+            for start, stop, kind in experiment.segments]
 
 
 def _segment_coefficients(motor: MotorParams, experiment: Experiment, start: int, stop: int) -> DqCoefficients:
@@ -344,8 +347,8 @@ def _split_coefficients(c: DqCoefficients, thermal: bool) -> tuple[DqCoefficient
     return c._replace(r_ld=0.0, r_lq=0.0), (c.r_ld, c.r_lq)
 
 
-def _linear_segment(motor: MotorParams, experiment: Experiment, start: int, stop: int, keep: int) -> jnp.ndarray:
-    """States over a segment of known speed (locked rotor, or measured speed), shape (N, keep).
+def _linear_segment(motor: MotorParams, experiment: Experiment, start: int, stop: int, keep: int) -> tuple:
+    """States over a segment of known speed (locked rotor, or measured speed): ``keep`` arrays of shape (N,).
 
     Only the currents are integrated: the speed at the RK4 stages is an
     input, so one step is affine in the currents, and the angle is the RK4
@@ -370,7 +373,7 @@ def _linear_segment(motor: MotorParams, experiment: Experiment, start: int, stop
         scan = _scan_states
     i_d, i_q = scan(functools.partial(_linear_step, experiment.sample_period, experiment.thermal), c,
                     (x0[0], x0[1]), inputs)
-    return jnp.stack([i_d, i_q, w, theta], axis=1)[:, :keep]
+    return (i_d, i_q, w, theta)[:keep]
 
 
 def _constant_linear_part(experiment: Experiment, start: int, stop: int) -> bool:
@@ -397,8 +400,8 @@ def _linear_step(dt: Any, thermal: bool, c: DqCoefficients, x: tuple, u: tuple) 
     return _rk4(f, x, dt, (u[2], u[3], u[4]))
 
 
-def _free_segment(motor: MotorParams, experiment: Experiment, start: int, stop: int, keep: int) -> jnp.ndarray:
-    """States over a free segment with simulated speed (w_m * i products: nonlinear), shape (N, keep).
+def _free_segment(motor: MotorParams, experiment: Experiment, start: int, stop: int, keep: int) -> tuple:
+    """States over a free segment with simulated speed (w_m * i products: nonlinear): ``keep`` arrays (N,).
 
     The rotor angle is integrated only when it is kept (nothing else reads it
     without dead time).
@@ -409,7 +412,7 @@ def _free_segment(motor: MotorParams, experiment: Experiment, start: int, stop: 
     x0 = tuple(experiment.initial_state[start, i] for i in range(dims))
     scan = _scan_linearised_tangents if experiment.linearised_tangents else _scan_states
     states = scan(functools.partial(_free_step, experiment.sample_period, experiment.thermal), c, x0, inputs)
-    return jnp.stack(states[:keep], axis=1)
+    return tuple(states[:keep])
 
 
 def _free_step(dt: Any, thermal: bool, c: DqCoefficients, x: tuple, u: tuple) -> tuple:
@@ -614,6 +617,34 @@ def predict_currents(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
     """
     # The rotor angle (state 3) is written out only when phase offsets need it.
     return measured_currents(_rollout(motor, experiment, 4 if experiment.phase_offsets else 2), motor, experiment)
+
+
+def _segmented(experiment: Experiment) -> bool:
+    """Whether :func:`predict_current_parts` splits by segment (else one part over all samples; static)."""
+    return experiment.segments is not None and not experiment.dead_time and not experiment.phase_offsets
+
+
+def predict_current_parts(motor: MotorParams, experiment: Experiment) -> tuple:
+    """:func:`predict_currents` as ``(i_d, i_q)`` per segment, flattened: 2 x segments arrays of shape (N_s,) (A).
+
+    The same numbers, not laid end to end: in a ``vmap``-ped batch the
+    segments' rollouts come out time-major, and joining them into (M, 2) per
+    motor costs a transposing copy of every Jacobian sweep. One part pair
+    over all M samples where the rollout is one scan or the phase offsets
+    need the angle. :func:`current_parts` splits measured currents alike.
+    """
+    if not _segmented(experiment):
+        predicted = predict_currents(motor, experiment)
+        return predicted[:, 0], predicted[:, 1]
+    return tuple(x for i_d, i_q in _segment_states(motor, experiment, 2)
+                 for x in (i_d + motor.offset_d, i_q + motor.offset_q))
+
+
+def current_parts(experiment: Experiment, currents: Any) -> tuple:
+    """Measured ``[i_d, i_q]`` (A), shape (M, 2), split as :func:`predict_current_parts` splits its prediction."""
+    if not _segmented(experiment):
+        return currents[:, 0], currents[:, 1]
+    return tuple(currents[start:stop, j] for start, stop, _ in experiment.segments for j in (0, 1))
 
 
 def predicted_currents(motor: MotorParams, experiment: Experiment) -> np.ndarray:
