@@ -785,14 +785,13 @@ def fit_currents(
             "add locked d/q steps and a free spin-up."
         )
     cur = currents if batched else currents[None]
+    fit_idx = [names.index(n) for n in fit_names]
     start = None  # from the data, inside the compiled solve
     if initial is not None or options.start != "data":
         start = np.broadcast_to(_start_vector(initial, prior, names), cur.shape[:1] + (len(names),))
-        z0 = to_search(prior, fit_names, start[:, [names.index(n) for n in fit_names]])
-        if not np.all(np.isfinite(z0)):
+        if not np.all(np.isfinite(to_search(prior, fit_names, start[:, fit_idx]))):
             raise DrivecalError(f"{source}: initial values of {', '.join(fit_names)} must be finite, and positive "
                                 "where the parameter is (R, inductances, flux, alpha_R).")
-    fit_idx = [names.index(n) for n in fit_names]
     history = None
     if batched:
         solved = _solve_staged(cur, start, prior, experiment, tuple(names), fit_names, options)

@@ -636,8 +636,7 @@ def predict_current_parts(motor: MotorParams, experiment: Experiment) -> tuple:
     if not _segmented(experiment):
         predicted = predict_currents(motor, experiment)
         return predicted[:, 0], predicted[:, 1]
-    return tuple(x for i_d, i_q in _segment_states(motor, experiment, 2)
-                 for x in (i_d + motor.offset_d, i_q + motor.offset_q))
+    return tuple(x for i_d, i_q in _segment_states(motor, experiment, 2) for x in _with_dq_offsets(i_d, i_q, motor))
 
 
 def current_parts(experiment: Experiment, currents: Any) -> tuple:
@@ -667,11 +666,16 @@ def measured_currents(states: jnp.ndarray, motor: MotorParams, experiment: Exper
     does not model phase offsets.
     """
     if not experiment.phase_offsets:
-        return jnp.stack([states[:, 0] + motor.offset_d, states[:, 1] + motor.offset_q], axis=-1)
+        return jnp.stack(_with_dq_offsets(states[:, 0], states[:, 1], motor), axis=-1)
     theta = jnp.where(jnp.isnan(experiment.theta_e), experiment.theta_e_start + motor.pole_pairs * states[:, 3],
                       experiment.theta_e)
     d_offset, q_offset = sensor_offsets(theta, motor)
     return jnp.stack([states[:, 0] + d_offset, states[:, 1] + q_offset], axis=-1)
+
+
+def _with_dq_offsets(i_d: Any, i_q: Any, motor: MotorParams) -> tuple[Any, Any]:
+    """Currents (A) as the sensors report them without phase offsets: plus the dq offsets."""
+    return i_d + motor.offset_d, i_q + motor.offset_q
 
 
 def sensor_offsets(theta_e: Any, motor: MotorParams) -> tuple[Any, Any]:
