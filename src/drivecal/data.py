@@ -16,6 +16,7 @@ Every check of a file lives in :func:`bench_from_frame`; each failure is one
 from __future__ import annotations
 
 import dataclasses
+import io
 import math
 from pathlib import Path
 
@@ -219,32 +220,61 @@ class BenchData:
 # --------------------------------------------------------------------------- reading
 
 
-def read_table(path: Path) -> pd.DataFrame:
-    """The raw table of a bench file (.csv, .parquet, .mat), unchecked."""
+#: A bench table as read: column name -> one numpy array per column, all of one length (floats,
+#: integers, or objects for text). What every check works on: a DataFrame lookup costs ~0.1 ms,
+#: which a fleet pays per column and motor.
+Columns = dict
+
+
+def columns_of(frame: pd.DataFrame | Columns, source: str = "bench data") -> Columns:
+    """The columns of a bench table as 1-D numpy arrays (a DataFrame, or a mapping of equal-length columns)."""
+    if isinstance(frame, pd.DataFrame):
+        return {str(c): frame[c].to_numpy() for c in frame.columns}
+    out = {str(c): np.atleast_1d(np.asarray(v)) for c, v in frame.items()}
+    lengths = {k: v.shape[0] for k, v in out.items()}
+    if len(set(lengths.values())) > 1 or any(v.ndim != 1 for v in out.values()):
+        raise DataError(f"{source}: the columns must be 1-D and of one length, got lengths {lengths}; "
+                        "give one value per sample in every column.")
+    return out
+
+
+def _num_rows(columns: Columns) -> int:
+    return next((v.shape[0] for v in columns.values()), 0)
+
+
+def read_table(path: Path, content: bytes | None = None) -> Columns:
+    """The raw columns of a bench file (.csv, .parquet, .mat), unchecked.
+
+    ``content``: the file's bytes when already read (a fleet hashes them too),
+    so the file is read once.
+    """
     suffix = path.suffix.lower()
     if suffix not in FORMATS:
         raise DataError(f"{path}: unknown bench-file format '{suffix}'; use one of {', '.join(FORMATS)}.")
-    if not path.is_file():
+    if content is None and not path.is_file():
         raise DataError(f"{path}: no such file; check the path.")
+    source = path if content is None else io.BytesIO(content)
     try:
         if suffix == ".csv":
-            return pd.read_csv(path)
+            return columns_of(pd.read_csv(source))
         if suffix == ".parquet":
-            # ParquetFile.read: a third of pd.read_parquet's time (no dataset machinery), which a fleet pays per motor.
+            # Arrow columns straight to numpy: no DataFrame (pandas' conversion and lookups cost
+            # ~1 ms a file, which a fleet pays per motor). Nulls become NaN (numbers) or None (text).
             import pyarrow.parquet as pq
 
-            return pq.ParquetFile(path).read(use_threads=False).to_pandas(split_blocks=True)
-        return _read_mat(path)
+            table = pq.ParquetFile(source).read(use_threads=False)
+            return {name: table.column(name).to_numpy() for name in table.column_names}
+        return _read_mat(path, source)
     except DataError:
         raise
     except Exception as exc:  # a parser's own error: say which file and what it said
         raise DataError(f"{path}: cannot be read as a {suffix[1:]} bench file ({exc}).") from None
 
 
-def _read_mat(path: Path) -> pd.DataFrame:
+def _read_mat(path: Path, source) -> Columns:
     from scipy.io import loadmat
 
-    raw = {k: v for k, v in loadmat(path, squeeze_me=True).items() if not k.startswith("__")}
+    raw = {k: v for k, v in loadmat(source, squeeze_me=True).items() if not k.startswith("__")}
     lengths = {k: np.size(v) for k, v in raw.items()}
     if len(set(lengths.values())) > 1:
         longest = max(lengths.values())
@@ -256,8 +286,9 @@ def _read_mat(path: Path) -> pd.DataFrame:
     columns = {}
     for k, v in raw.items():
         arr = np.atleast_1d(v)
-        columns[k] = [str(x).strip() for x in arr] if arr.dtype.kind in "OUS" else arr.astype(float)
-    return pd.DataFrame(columns)
+        columns[k] = (np.array([str(x).strip() for x in arr], dtype=object) if arr.dtype.kind in "OUS"
+                      else arr.astype(float))
+    return columns
 
 
 def _noise_level(x: np.ndarray) -> float:
@@ -275,54 +306,48 @@ def _median(x: np.ndarray) -> float:
     return 0.5 * (part[(n - 1) // 2] + part[n // 2])
 
 
-def _clarke_park(frame: pd.DataFrame, prefix: str, theta_e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _clarke_park(columns: Columns, prefix: str, theta_e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Amplitude-invariant Clarke then Park of phase quantities ``<prefix>_a/b(/c)``."""
-    a, b = frame[f"{prefix}_a"].to_numpy(float), frame[f"{prefix}_b"].to_numpy(float)
+    a, b = columns[f"{prefix}_a"].astype(float), columns[f"{prefix}_b"].astype(float)
     # Without the third phase, assume no zero-sequence component: c = -a - b.
-    c = frame[f"{prefix}_c"].to_numpy(float) if f"{prefix}_c" in frame else -a - b
+    c = columns[f"{prefix}_c"].astype(float) if f"{prefix}_c" in columns else -a - b
     alpha = (2.0 * a - b - c) / 3.0
     beta = (b - c) / math.sqrt(3.0)
     cos, sin = np.cos(theta_e), np.sin(theta_e)
     return alpha * cos + beta * sin, -alpha * sin + beta * cos
 
 
-def _phase_to_dq(frame: pd.DataFrame, source: str, pole_pairs: float) -> pd.DataFrame:
+def _phase_to_dq(frame: Columns, source: str, pole_pairs: float) -> Columns:
     """Replace phase columns by dq columns (amplitude-invariant transforms)."""
     for name in ("i_b", "v_a", "v_b"):
         if name not in frame:
             raise DataError(f"{source}: phase data needs column '{name}' (with i_a, i_b, v_a, v_b, optional i_c, v_c).")
+    _check_finite(frame, source, [c for c in frame if c[:2] in ("i_", "v_")] + ["theta_e", "theta_m"])
     if "theta_e" in frame:
-        theta_e = frame["theta_e"].to_numpy(float)
+        theta_e = frame["theta_e"].astype(float)
     elif "theta_m" in frame:
-        theta_e = pole_pairs * frame["theta_m"].to_numpy(float)
+        theta_e = pole_pairs * frame["theta_m"].astype(float)
     else:
         raise DataError(
             f"{source}: phase data needs a rotor angle column: 'theta_e' (electrical, rad) or "
             "'theta_m' (mechanical, rad; multiplied by pole_pairs from the motor file)."
         )
-    _check_finite(frame, source, [c for c in frame.columns if c[:2] in ("i_", "v_")] + ["theta_e", "theta_m"])
-    out = frame.copy()
+    out = dict(frame)
     out["theta_e"] = theta_e
     out["i_d"], out["i_q"] = _clarke_park(frame, "i", theta_e)
     out["v_d"], out["v_q"] = _clarke_park(frame, "v", theta_e)
     return out
 
 
-def _check_finite(frame: pd.DataFrame, source: str, columns: list[str], values: dict | None = None) -> None:
-    """Every value of ``columns`` a finite number, else a DataError naming the first bad row.
-
-    ``values``: numeric columns already read as float arrays (checked without touching the frame).
-    """
-    for col in columns:
-        if values is not None and col in values and np.all(np.isfinite(values[col])):
+def _check_finite(columns: Columns, source: str, names: list[str]) -> None:
+    """Every value of the columns ``names`` (those present) a finite number, else a DataError naming the first bad row."""
+    for col in names:
+        if col not in columns:
             continue
-        if col not in frame:
-            continue
-        series = frame[col]
-        if series.dtype.kind in "fiub":
-            if np.all(np.isfinite(series.to_numpy(float))):
-                continue  # the common case, without pd.to_numeric's per-column cost
-        values = pd.to_numeric(series, errors="coerce").to_numpy(float)
+        raw = columns[col]
+        if raw.dtype.kind in "fiub" and np.all(np.isfinite(raw)):
+            continue  # the common case, without pd.to_numeric's per-column cost
+        values = pd.to_numeric(raw, errors="coerce").astype(float)
         bad = ~np.isfinite(values)
         if not bad.any():
             continue
@@ -334,8 +359,7 @@ def _check_finite(frame: pd.DataFrame, source: str, columns: list[str], values: 
                 f"sample rate than 't'; resample '{col}' onto the time base of 't'."
             )
         row = int(np.flatnonzero(bad)[0])
-        raw = frame[col].iloc[row]
-        what = "a missing value" if pd.isna(raw) else f"'{raw}'"
+        what = "a missing value" if pd.isna(raw[row]) else f"'{raw[row]}'"
         raise DataError(
             f"{source}: column '{col}' has {what} in data row {row + 1} ({int(bad.sum())} bad value(s) in all); "
             "every value must be a finite number: remove or repair those rows."
@@ -343,7 +367,7 @@ def _check_finite(frame: pd.DataFrame, source: str, columns: list[str], values: 
 
 
 def bench_from_frame(
-    frame: pd.DataFrame,
+    frame: pd.DataFrame | Columns,
     source: str = "bench data",
     *,
     pole_pairs: float = 4.0,
@@ -352,7 +376,9 @@ def bench_from_frame(
     """Check a table of bench samples and split it into segments.
 
     Args:
-        frame: one row per sample with the bench-file columns (dq or phase).
+        frame: one row per sample with the bench-file columns (dq or phase): a
+            DataFrame, or a mapping of column name to equal-length arrays (as
+            :func:`read_table` returns).
         source: the file name used in messages.
         pole_pairs: for a ``theta_m`` angle column (-).
         nominal_R: nominal resistance (ohm) for the plausibility check of the
@@ -361,7 +387,8 @@ def bench_from_frame(
     Raises:
         DataError: one sentence naming ``source``, the column and the fix.
     """
-    if len(frame) == 0:
+    frame = columns_of(frame, source)
+    if _num_rows(frame) == 0:
         raise DataError(f"{source}: the file has no samples; record at least one segment.")
     if "i_d" not in frame and "i_a" in frame:
         frame = _phase_to_dq(frame, source, pole_pairs)
@@ -371,9 +398,7 @@ def bench_from_frame(
             raise DataError(f"{source}: missing column '{col}' ({meaning}){hint}; add it to the file.")
     optional = [c for c in ("w_m", "theta_e") if c in frame]
     numeric = ["locked", "t", "v_d", "v_q", "i_d", "i_q"] + optional
-    # Each column read once (a DataFrame lookup costs ~0.1 ms, which a fleet pays per column and motor).
-    values = {c: frame[c].to_numpy(float) for c in numeric if frame[c].dtype.kind in "fiub"}
-    _check_finite(frame, source, numeric, values)
+    _check_finite(frame, source, numeric)
     # Segment names by code (a handful of distinct names over thousands of rows: strip those, not every row).
     codes, labels = pd.factorize(frame["segment"], use_na_sentinel=True)
     labels = [str(x).strip() for x in labels]
@@ -389,7 +414,7 @@ def bench_from_frame(
     # Segments in order of appearance; each must be one block of consecutive rows.
     boundaries = np.flatnonzero(codes[1:] != codes[:-1]) + 1
     starts = np.concatenate([[0], boundaries])
-    stops = np.concatenate([boundaries, [len(frame)]])
+    stops = np.concatenate([boundaries, [codes.shape[0]]])
     order = [distinct[codes[i]] for i in starts]
     if len(set(order)) != len(order):
         again = next(n for n in order if order.count(n) > 1)
@@ -398,7 +423,7 @@ def bench_from_frame(
             "or give the blocks different names."
         )
 
-    column = {c: values[c] if c in values else frame[c].to_numpy(float) for c in numeric}
+    column = {c: frame[c].astype(float, copy=False) for c in numeric}
     segments, rates = [], []
     for name, lo, hi in zip(order, starts, stops):
         rows = slice(lo, hi)
@@ -441,7 +466,7 @@ def bench_from_frame(
         at_rest = bool(np.all(np.abs(currents[0]) <= 5.0 * noise))
         if w_m is not None and not locked:
             at_rest = at_rest and abs(w_m[0]) <= max(5.0 * _noise_level(w_m), 1e-6)
-        temperature = _segment_temperature(frame["temperature"].iloc[lo:hi], where) if "temperature" in frame else None
+        temperature = _segment_temperature(frame["temperature"][lo:hi], where) if "temperature" in frame else None
         theta_e = column["theta_e"][rows] if "theta_e" in column else None
         segments.append(SegmentData(name, locked, t - t[0], voltages, currents, w_m, at_rest, temperature, theta_e))
 
@@ -458,9 +483,9 @@ def bench_from_frame(
     return bench
 
 
-def _segment_temperature(rows: pd.Series, where: str) -> np.ndarray | None:
+def _segment_temperature(rows: np.ndarray, where: str) -> np.ndarray | None:
     """A segment's ``temperature`` column (degC): all blank means not recorded (None); else every value finite."""
-    values = pd.to_numeric(rows, errors="coerce").to_numpy(float)
+    values = pd.to_numeric(rows, errors="coerce").astype(float)
     if np.all(np.isnan(values)):
         return None
     if not np.all(np.isfinite(values)):

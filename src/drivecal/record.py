@@ -53,6 +53,11 @@ def software_versions() -> dict[str, str]:
     return out
 
 
+def content_sha256(content: bytes) -> str:
+    """SHA-256 (hex) of a bench file's bytes already read: equal to :func:`file_sha256` of that file."""
+    return hashlib.sha256(content).hexdigest()
+
+
 def file_sha256(path: str | os.PathLike) -> str:
     """SHA-256 (hex) of a file's bytes: the identity of a bench file."""
     h = hashlib.sha256()

@@ -60,9 +60,10 @@ def ljung_box(x: np.ndarray, lags: int = WHITENESS_LAGS) -> tuple[Any, Any]:
         nan = np.full(x.shape[:-1], np.nan)
         return (float("nan"), float("nan")) if x.ndim == 1 else (nan, nan)
     d = x - x.mean(axis=-1, keepdims=True)
-    denom = np.sum(d * d, axis=-1)
+    # einsum sums the lagged products without a temporary array per lag (a fleet tests ~1000 series a chunk).
+    denom = np.einsum("...i,...i->...", d, d)
     with np.errstate(invalid="ignore", divide="ignore"):
-        r = np.stack([np.sum(d[..., :-k] * d[..., k:], axis=-1) for k in range(1, lags + 1)], axis=-1)
+        r = np.stack([np.einsum("...i,...i->...", d[..., :-k], d[..., k:]) for k in range(1, lags + 1)], axis=-1)
         r = r / denom[..., None]
         q = n * (n + 2) * np.sum(r**2 / (n - np.arange(1, lags + 1)), axis=-1)
     q = np.where(denom > 0, q, np.nan)
