@@ -210,3 +210,42 @@ def test_partition_median_is_numpy_median(n):
 
     x = np.random.default_rng(n).normal(size=n)
     assert _median(x) == np.median(x)
+
+
+def test_columns_and_frame_give_the_same_bench(tmp_path):
+    """The columnar path (what files are read into) checks and splits exactly as a DataFrame does."""
+    frame = small_frame()
+    frame.loc[5, "i_d"] += 0.01  # something not symmetric
+    from_frame = dc.bench_from_frame(frame, "frame")
+    columns = {c: frame[c].to_numpy() for c in frame.columns}
+    from_columns = dc.bench_from_frame(columns, "columns")
+    path = tmp_path / "bench.parquet"
+    frame.to_parquet(path, index=False)
+    from_file = dc.load_bench(path)
+    for other in (from_columns, from_file):
+        assert other.sample_rate == from_frame.sample_rate
+        for a, b in zip(other.segments, from_frame.segments):
+            assert (a.name, a.locked, a.at_rest) == (b.name, b.locked, b.at_rest)
+            np.testing.assert_array_equal(a.t, b.t)
+            np.testing.assert_array_equal(a.voltages, b.voltages)
+            np.testing.assert_array_equal(a.currents, b.currents)
+    with pytest.raises(dc.DataError, match="one length"):
+        dc.bench_from_frame({**columns, "i_q": columns["i_q"][:-1]}, "short.csv")
+
+
+def test_fleet_whiteness_equals_the_single_fit_test():
+    """The fleet's batched Ljung-Box p-values are the verdict's, series by series."""
+    from drivecal.fleet import residual_diagnostics
+    from drivecal.verdict import WHITENESS_ALPHA, ljung_box
+
+    rng = np.random.default_rng(3)
+    residuals = rng.standard_normal((5, 300, 2))
+    residuals[2, 100:, 0] += np.sin(np.arange(200) / 5.0)  # one coloured series
+    start = np.zeros(300, dtype=bool)
+    start[[0, 100]] = True
+    diag = residual_diagnostics(residuals, start)
+    for b in range(5):
+        p = [ljung_box(residuals[b, lo:hi, j])[1] for lo, hi in ((0, 100), (100, 300)) for j in (0, 1)]
+        assert diag["resid_min_p"][b] == pytest.approx(min(p), rel=1e-9)
+        assert diag["mismatch"][b] == (min(p) < WHITENESS_ALPHA / 4)
+    assert diag["mismatch"][2]
