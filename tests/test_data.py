@@ -249,3 +249,18 @@ def test_fleet_whiteness_equals_the_single_fit_test():
         assert diag["resid_min_p"][b] == pytest.approx(min(p), rel=1e-9)
         assert diag["mismatch"][b] == (min(p) < WHITENESS_ALPHA / 4)
     assert diag["mismatch"][2]
+
+
+def test_ljung_box_equals_its_formula():
+    """Q = N(N+2) sum_k r_k^2 / (N-k), r_k the lag-k autocorrelation, computed plainly."""
+    from drivecal.distributions import chi2_sf
+    from drivecal.verdict import ljung_box
+
+    x = np.random.default_rng(4).standard_normal(257)
+    d = x - x.mean()
+    n, lags = x.size, 10
+    r = np.array([np.correlate(d[:-k], d[k:])[0] for k in range(1, lags + 1)]) / (d @ d)
+    q = n * (n + 2) * sum(r[k - 1] ** 2 / (n - k) for k in range(1, lags + 1))
+    q_lb, p_lb = ljung_box(x, lags)
+    assert q_lb == pytest.approx(q, rel=1e-12)
+    assert p_lb == pytest.approx(float(chi2_sf(q, lags)), rel=1e-12)
