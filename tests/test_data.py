@@ -210,6 +210,8 @@ def test_partition_median_is_numpy_median(n):
 
     x = np.random.default_rng(n).normal(size=n)
     assert _median(x) == np.median(x)
+    columns = np.random.default_rng(n + 1).normal(size=(n, 3))
+    np.testing.assert_array_equal(_median(columns), np.median(columns, axis=0))
 
 
 def test_columns_and_frame_give_the_same_bench(tmp_path):
