@@ -186,7 +186,7 @@ def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool
     converged = np.asarray(cal.converged)[:n]
     codes = np.asarray(cal.result_code)[:n]
     messages = [_result_message(int(c), bool(ok)) for c, ok in zip(codes, converged)]
-    # Columns for the whole chunk at once (a Calibration per motor costs ~10 us of Python each).
+    # Columns for the whole chunk at once, not a Calibration and a dict per motor.
     columns: dict[str, Any] = {
         "serial": [it.serial for it in items], "file": [it.path for it in items],
         "file_sha256": [it.sha256 for it in items],
@@ -211,21 +211,21 @@ def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool
     return pd.DataFrame(columns)
 
 
-def load_files(paths: Sequence[str], motor_file: MotorFile) -> list[_Loaded]:
-    """Read and check bench files: each one a loaded bench, or the reason it was refused."""
-    return [_load(str(p), motor_file) for p in paths]
-
-
-def calibrate_loaded(
-    loaded: list[_Loaded],
+def calibrate_files(
+    paths: Sequence[str],
     motor_file: MotorFile,
     *,
     chunk: int = 256,
     measured_speed: bool = True,
 ) -> pd.DataFrame:
-    """Calibrate loaded bench files (:func:`load_files`); one row per file, failures included, in their order."""
+    """Calibrate one chunk of bench files; one row per file, failures included, in the order of ``paths``.
+
+    Runs wherever it is called: in this process, or on a dask worker (the
+    compiled fit stays in that worker's memory for its next chunk).
+    """
     from . import __version__
 
+    loaded = [_load(str(p), motor_file) for p in paths]
     failed: list[dict] = []
     fitted: list[pd.DataFrame] = []
     groups: dict[tuple, list[_Loaded]] = {}
@@ -253,21 +253,6 @@ def calibrate_loaded(
     table = table.iloc[np.argsort(table["file"].map(order).to_numpy(), kind="stable")].reset_index(drop=True)
     table["drivecal_version"] = __version__
     return table
-
-
-def calibrate_files(
-    paths: Sequence[str],
-    motor_file: MotorFile,
-    *,
-    chunk: int = 256,
-    measured_speed: bool = True,
-) -> pd.DataFrame:
-    """Calibrate one chunk of bench files; one row per file, failures included.
-
-    Runs wherever it is called: in this process, or on a dask worker (the
-    compiled fit stays in that worker's memory for its next chunk).
-    """
-    return calibrate_loaded(load_files(paths, motor_file), motor_file, chunk=chunk, measured_speed=measured_speed)
 
 
 # --------------------------------------------------------------------------- fleet checks
