@@ -718,6 +718,10 @@ def stack_experiments(experiments: list[Experiment]) -> Experiment:
     # The segment layout is shared by the batch; where the datasets' layouts differ, none is used.
     layouts = {e.segments for e in experiments}
     flags["segments"] = layouts.pop() if len(layouts) == 1 else None
-    experiments = [dataclasses.replace(e, **flags) for e in experiments]
-    # Stacked on the host, then one transfer per field (the experiments may hold numpy arrays).
-    return jax.tree_util.tree_map(lambda *leaves: jnp.asarray(np.stack(leaves)), *experiments)
+    fields = dataclasses.fields(Experiment)
+    statics = {f.name: getattr(experiments[0], f.name) for f in fields if f.metadata.get("static", False)}
+    # Field by field, stacked on the host, then one transfer per field (the experiments may hold numpy
+    # arrays); one Module built for the batch, not one per experiment (~0.1 ms each in a fleet).
+    arrays = {f.name: jnp.asarray(np.stack([np.asarray(getattr(e, f.name)) for e in experiments]))
+              for f in fields if not f.metadata.get("static", False)}
+    return Experiment(**arrays, **{**statics, **flags})
