@@ -254,19 +254,18 @@ def read_table(path: Path, content: bytes | None = None) -> Columns:
         raise DataError(f"{path}: unknown bench-file format '{suffix}'; use one of {', '.join(FORMATS)}.")
     if content is None and not path.is_file():
         raise DataError(f"{path}: no such file; check the path.")
-    source = path if content is None else io.BytesIO(content)
     try:
-        if suffix == ".csv":
-            return columns_of(pd.read_csv(source))
         if suffix == ".parquet":
             # Arrow columns straight to numpy: no DataFrame (pandas' conversion and lookups cost
             # ~1 ms a file, which a fleet pays per motor). Nulls become NaN (numbers) or None (text).
-            import pyarrow.parquet as pq
-
             import pyarrow as pa
+            import pyarrow.parquet as pq
 
             table = pq.ParquetFile(path if content is None else pa.BufferReader(content)).read(use_threads=False)
             return {name: table.column(name).to_numpy() for name in table.column_names}
+        source = path if content is None else io.BytesIO(content)
+        if suffix == ".csv":
+            return columns_of(pd.read_csv(source))
         return _read_mat(path, source)
     except DataError:
         raise
@@ -274,7 +273,8 @@ def read_table(path: Path, content: bytes | None = None) -> Columns:
         raise DataError(f"{path}: cannot be read as a {suffix[1:]} bench file ({exc}).") from None
 
 
-def _read_mat(path: Path, source) -> Columns:
+def _read_mat(path: Path, source: Path | io.BytesIO) -> Columns:
+    """The columns of a MATLAB bench file (``source``: its path or its bytes; ``path`` names it in messages)."""
     from scipy.io import loadmat
 
     raw = {k: v for k, v in loadmat(source, squeeze_me=True).items() if not k.startswith("__")}

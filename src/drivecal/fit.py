@@ -392,7 +392,7 @@ def _solve_staged(currents, start, prior, experiment, names, fit_names, options:
     return jax.tree_util.tree_map(merge, solved, redone)
 
 
-def _result_message(code: int, converged: bool) -> str:
+def result_message(code: int, converged: bool) -> str:
     if converged:
         return "converged"
     message = optx.RESULTS._index_to_message[int(code)]
@@ -493,7 +493,7 @@ class Calibration:
     @property
     def message(self) -> str:
         """How the fit ended, in words (single fits)."""
-        return _result_message(int(self.result_code), bool(self.converged))
+        return result_message(int(self.result_code), bool(self.converged))
 
     @property
     def fixed(self) -> dict[str, float]:

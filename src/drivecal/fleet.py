@@ -33,7 +33,7 @@ import pandas as pd
 from .config import MotorFile
 from .data import FORMATS, BenchData, bench_from_frame, read_table
 from .errors import DrivecalError
-from .fit import _result_message, fit_currents
+from .fit import fit_currents, result_message
 from .forward import Experiment, model_experiment, predict_currents, stack_experiments
 from .identify import check_requested
 from .motor import ESTIMATED, MotorParams
@@ -46,7 +46,7 @@ DEFAULT_OUTLIER_Z = 5.0
 
 #: Chunks from which a run without ``--workers`` starts a local cluster of the machine's cores: the
 #: cluster costs ~4 s to start and saves ~0.25 s a chunk of 256 on two cores (bench_fleet: 1 000
-#: motors 6.7 s in-process against 9.9 s on two workers; 10 000 motors 35.0 s against 29.3 s).
+#: motors 6.3 s in-process against 8.4 s on two workers; 10 000 motors 37.0 s against 27.4 s).
 LOCAL_CLUSTER_MIN_CHUNKS = 16
 
 STATUS_CALIBRATED = "calibrated"
@@ -185,14 +185,13 @@ def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool
     n = len(items)
     converged = np.asarray(cal.converged)[:n]
     codes = np.asarray(cal.result_code)[:n]
-    messages = [_result_message(int(c), bool(ok)) for c, ok in zip(codes, converged)]
+    messages = [result_message(int(c), bool(ok)) for c, ok in zip(codes, converged)]
     # Columns for the whole chunk at once, not a Calibration and a dict per motor.
     columns: dict[str, Any] = {
         "serial": [it.serial for it in items], "file": [it.path for it in items],
         "file_sha256": [it.sha256 for it in items],
         "status": np.where(converged, STATUS_PARTIAL if partial else STATUS_CALIBRATED, STATUS_NOT_CONVERGED),
-        "reason": [reason_partial if ok else m for ok, m in zip(converged, messages)] if partial
-        else ["" if ok else m for ok, m in zip(converged, messages)],
+        "reason": [(reason_partial if partial else "") if ok else m for ok, m in zip(converged, messages)],
         "converged": converged.astype(bool), "message": messages,
         "iterations": np.asarray(cal.iterations)[:n].astype(int),
         "sigma_hat": np.asarray(cal.sigma_hat)[:n].astype(float),
