@@ -266,3 +266,94 @@ def test_ljung_box_equals_its_formula():
     q_lb, p_lb = ljung_box(x, lags)
     assert q_lb == pytest.approx(q, rel=1e-12)
     assert p_lb == pytest.approx(float(chi2_sf(q, lags)), rel=1e-12)
+
+
+def test_many_tables_checked_together_as_one_by_one(monkeypatch):
+    """benches_from_frames == bench_from_frame per table: the same benches, the same one-sentence errors."""
+    from drivecal import data
+    from drivecal.data import benches_from_frames
+
+    good = small_frame()
+    rng = np.random.default_rng(7)
+    frames, sources = [], []
+    for k in range(6):  # alike in layout, each with its own noise; one starts moving
+        f = good.copy()
+        f[["i_d", "i_q"]] += 0.01 * rng.standard_normal((len(f), 2))
+        if k == 3:
+            f.loc[0, "i_d"] = 5.0
+        frames.append(f)
+        sources.append(f"good{k}.csv")
+    for case, (bad, _) in CASES.items():  # every corruption, most of them laid out as the good ones
+        frames.append(bad)
+        sources.append(f"{case}.csv")
+    frames.append(good.assign(w_m=np.linspace(0.0, 3.0, len(good))))  # another layout, its own group
+    sources.append("speed.csv")
+    columns = [{c: f[c].to_numpy() for c in f.columns} for f in frames]
+    alone_checked = []
+    one = data.bench_from_frame
+    monkeypatch.setattr(data, "bench_from_frame", lambda frame, source, **kw: alone_checked.append(source)
+                        or one(frame, source, **kw))
+    together = benches_from_frames(columns, sources, nominal_R=0.45)
+    monkeypatch.undo()
+    assert not {"good1.csv", "good2.csv", "good3.csv"} & set(alone_checked)  # checked with good0, vectorised
+    assert len(together) == len(frames)
+    for frame, source, result in zip(columns, sources, together):
+        try:
+            alone = dc.bench_from_frame(frame, source, nominal_R=0.45)
+        except dc.DataError as exc:
+            assert isinstance(result, dc.DataError), source
+            assert str(result) == str(exc)
+            continue
+        assert isinstance(result, dc.BenchData), (source, result)
+        assert (result.sample_rate, result.source) == (alone.sample_rate, alone.source)
+        for a, b in zip(result.segments, alone.segments):
+            assert (a.name, a.locked, a.at_rest) == (b.name, b.locked, b.at_rest)
+            for field in ("t", "voltages", "currents", "w_m"):
+                np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    assert not together[3].segments[0].at_rest and together[0].segments[0].at_rest
+    assert sum(isinstance(r, dc.DataError) for r in together) == len(CASES)
+
+
+@pytest.mark.parametrize("delay", [0, 2])
+def test_stacked_experiment_is_the_stack_of_experiments(delay):
+    """Built at once for a fleet, or per bench and stacked: the same arrays, the same layout."""
+    import jax
+
+    from drivecal.data import stacked_experiment
+    from drivecal.forward import stack_experiments
+
+    frame = small_frame().assign(w_m=lambda f: np.where(f["locked"] == 1, 0.0, np.linspace(0.0, 5.0, len(f))))
+    benches = [dc.bench_from_frame(frame, "a"), dc.bench_from_frame(frame.iloc[5:], "b")]  # b starts moving
+    benches.append(dc.bench_from_frame(frame.assign(t=frame["t"] * 1.5), "c"))  # another sample rate
+    benches = [b for b in benches if b.num_samples == benches[0].num_samples] + [benches[2]]
+    assert not dc.bench_from_frame(frame.iloc[5:], "b").segments[0].at_rest
+    for measured in (True, False):
+        one_by_one = stack_experiments([b.experiment(measured, delay) for b in benches])
+        at_once = stacked_experiment(benches, measured, delay)
+        leaves_a, tree_a = jax.tree_util.tree_flatten(one_by_one)
+        leaves_b, tree_b = jax.tree_util.tree_flatten(at_once)
+        assert tree_a == tree_b
+        for a, b in zip(leaves_a, leaves_b):
+            assert np.shape(a) == np.shape(b) and np.asarray(a).dtype == np.asarray(b).dtype
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    moving = [dc.bench_from_frame(frame.iloc[5:], "b")] * 2
+    np.testing.assert_array_equal(stacked_experiment(moving, True, delay).initial_state[0],
+                                  moving[0].experiment(True, delay).initial_state)
+
+
+def test_parquet_text_columns_read_as_labels(tmp_path):
+    """Text columns come back as Python strings (None where null), as pandas would give them."""
+    from drivecal.data import read_table
+
+    frame = small_frame(8).assign(serial="SN1")
+    frame.loc[3, "segment"] = None
+    path = tmp_path / "b.parquet"
+    frame.to_parquet(path, index=False)
+    for content in (None, path.read_bytes()):
+        columns = read_table(path, content)
+        assert columns["segment"].dtype == object and columns["serial"].dtype == object
+        assert columns["segment"].tolist() == [None if pd.isna(x) else x for x in frame["segment"]]
+        assert columns["serial"].tolist() == ["SN1"] * len(frame)
+        np.testing.assert_array_equal(columns["i_d"], frame["i_d"].to_numpy())
+    frame.drop(columns="serial").to_parquet(path, index=False)  # without the serial column
+    assert read_table(path)["segment"].tolist() == [None if pd.isna(x) else x for x in frame["segment"]]

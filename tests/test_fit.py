@@ -52,6 +52,21 @@ def test_history_from_the_guess(default_bench, guess, default_fit):
     assert np.all(np.abs(cal.estimate - default_fit.estimate) < 1e-3 * default_fit.se)
 
 
+def test_residuals_are_the_model_at_the_estimate_minus_the_data(default_fit, default_bench):
+    """What the fleet tests for whiteness: the solver's residuals, equal to a fresh prediction at the estimate."""
+    from drivecal.forward import predicted_currents
+
+    res = default_fit.residuals
+    assert res.shape == (default_bench.num_samples, 2)
+    assert np.sum(res**2) == pytest.approx(float(default_fit.rss), rel=1e-12)
+    diff = res - (predicted_currents(default_fit.motor, default_bench.experiment()) - default_bench.currents)
+    # They differ by the final Gauss-Newton step (at most step_se SE): J times it has an rms over the
+    # m residuals of at most step_se * sigma * sqrt(n / m).
+    m, n = res.size, len(default_fit.fit_names)
+    bound = dc.FitOptions().step_se * float(default_fit.sigma_hat) * np.sqrt(n / m)
+    assert np.sqrt(np.mean(diff**2)) <= bound
+
+
 def test_result_json_contract(default_fit):
     d = json.loads(json.dumps(default_fit.to_dict()))
     for name in dc.ESTIMATED:

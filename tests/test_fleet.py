@@ -80,17 +80,18 @@ def test_corrupt_files_are_recorded_and_the_rest_calibrated(tmp_path, capsys):
     assert not fleet.parts_dir(out).exists()
 
 
-def _batch_process(inputs: Path, out: Path, *extra: str) -> subprocess.Popen:
+def _batch_process(inputs: Path, out: Path, *extra: str, workers: int = 1) -> subprocess.Popen:
     exe = Path(sys.executable).with_name("drivecal")
-    return subprocess.Popen([str(exe), "batch", str(inputs), "--out", str(out), "--chunk", "4", "--workers", "1",
-                             *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen([str(exe), "batch", str(inputs), "--out", str(out), "--chunk", "4", "--workers",
+                             str(workers), *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 @pytest.mark.slow
 def test_killed_run_resumes_without_losing_or_repeating_a_motor(tmp_path):
+    """Killed and resumed on two local processes (a forked helper), it equals one uninterrupted in-process run."""
     fleet.synthetic_fleet(tmp_path / "in", 96, seed=3)
     out = tmp_path / "killed.parquet"
-    proc = _batch_process(tmp_path / "in", out)
+    proc = _batch_process(tmp_path / "in", out, workers=2)
     parts = fleet.parts_dir(out)
     deadline = time.monotonic() + 300
     while not (parts.is_dir() and len(list(parts.glob("part-*.parquet"))) >= 2):
@@ -102,7 +103,7 @@ def test_killed_run_resumes_without_losing_or_repeating_a_motor(tmp_path):
     written = len(list(parts.glob("part-*.parquet")))
     assert not out.exists() and 2 <= written < 24  # killed mid-run
 
-    resumed = _batch_process(tmp_path / "in", out, "--resume")
+    resumed = _batch_process(tmp_path / "in", out, "--resume", workers=2)
     _, err = resumed.communicate(timeout=600)
     assert resumed.returncode == 0, err
     whole = _batch_process(tmp_path / "in", tmp_path / "whole.parquet")
@@ -119,7 +120,8 @@ def test_killed_run_resumes_without_losing_or_repeating_a_motor(tmp_path):
 
 
 @pytest.mark.slow
-def test_dask_cluster_gives_the_same_table(tmp_path):
+def test_dask_cluster_and_local_processes_give_the_same_table(tmp_path):
+    """A dask LocalCluster (--scheduler), and this process with a spawned helper (JAX runs here already)."""
     from distributed import LocalCluster
 
     fleet.synthetic_fleet(tmp_path / "in", 24, seed=4)
@@ -127,12 +129,14 @@ def test_dask_cluster_gives_the_same_table(tmp_path):
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         remote = fleet.run_batch([tmp_path / "in"], tmp_path / "dask.parquet", MOTOR, chunk=8,
                                  scheduler=cluster.scheduler_address)
-    assert local.total == remote.total == 24
+    helped = fleet.run_batch([tmp_path / "in"], tmp_path / "two.parquet", MOTOR, chunk=8, workers=2)
+    assert local.total == remote.total == helped.total == 24
     a = pd.read_parquet(tmp_path / "local.parquet")
-    b = pd.read_parquet(tmp_path / "dask.parquet")
-    assert a["serial"].tolist() == b["serial"].tolist()
-    for name in dc.ESTIMATED:
-        np.testing.assert_allclose(a[name], b[name], rtol=1e-10)
+    for other in ("dask.parquet", "two.parquet"):
+        b = pd.read_parquet(tmp_path / other)
+        assert a["serial"].tolist() == b["serial"].tolist()
+        for name in dc.ESTIMATED:
+            np.testing.assert_allclose(a[name], b[name], rtol=1e-10)
 
 
 def test_existing_results_need_resume(tmp_path, capsys):

@@ -31,7 +31,7 @@ from . import traced
 from .data import BenchData
 from .distributions import t_ppf
 from .errors import DrivecalError
-from .forward import Experiment, current_parts, model_experiment, predict_current_parts
+from .forward import Experiment, current_parts, join_current_parts, model_experiment, predict_current_parts
 from .identify import Identifiability, assess_identifiability
 from .initial import start_from_data
 from .motor import (ADDITIVE_SCALE, ESTIMATED, FIXED, NUISANCE, UNITS, MotorParams, from_search, parameter_values,
@@ -96,6 +96,7 @@ class _Solved(eqx.Module):
     converged: jnp.ndarray  # () bool
     accepted: jnp.ndarray | None = None  # (max_steps, n) z after each LM step (recorded solves only)
     initial: jnp.ndarray | None = None  # (len(names),) where the search started, SI units
+    residuals: jnp.ndarray | None = None  # (M, 2) A, model minus measured at the last linearisation
 
 
 def _silent(**kwargs) -> None:
@@ -308,6 +309,7 @@ def _solve_one(currents, z0, prior, experiment, names, options, record) -> _Solv
         result_code=sol.result._value,
         converged=ok,
         accepted=sol.state.accepted if record else None,
+        residuals=join_current_parts(experiment, sol.state.f_info.residual),
     )
 
 
@@ -429,6 +431,9 @@ class Calibration:
         history: (K, n) accepted LM iterates of ``fit_names`` (SI), the start
             first and the estimate last; single fits only, else None.
         delay_samples: the inverter delay (samples) the fit assumed.
+        residuals: (..., M, 2) model minus measured ``[i_d, i_q]`` (A) at the
+            solver's last linearisation (the estimate is at most a final
+            Gauss-Newton step of ``FitOptions.step_se`` SE from it), or None.
     """
 
     names: tuple[str, ...]
@@ -451,6 +456,7 @@ class Calibration:
     source: str = "synthetic bench"
     history: np.ndarray | None = None
     delay_samples: int = 0
+    residuals: np.ndarray | None = None
 
     # --- batch handling --------------------------------------------------
 
@@ -469,7 +475,7 @@ class Calibration:
         if not self.batch_shape:
             raise TypeError("a single Calibration cannot be indexed; it is not a batch")
         fields = ("estimate", "se", "ci95", "covariance", "sigma_hat", "rss", "iterations", "converged",
-                  "result_code", "initial")
+                  "result_code", "initial") + (("residuals",) if self.residuals is not None else ())
         return dataclasses.replace(self, **{f: getattr(self, f)[i] for f in fields})
 
     # --- convenient views ------------------------------------------------
@@ -834,6 +840,7 @@ def fit_currents(
         source=source,
         history=history,
         delay_samples=int(delay_samples),
+        residuals=np.asarray(solved.residuals),
     )
     return calib if batched else calib[0]
 

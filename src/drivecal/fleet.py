@@ -31,10 +31,10 @@ import numpy as np
 import pandas as pd
 
 from .config import MotorFile
-from .data import FORMATS, BenchData, bench_from_frame, read_table
+from .data import FORMATS, BenchData, benches_from_frames, read_table, stacked_experiment
 from .errors import DrivecalError
 from .fit import fit_currents, result_message
-from .forward import Experiment, model_experiment, predict_currents, stack_experiments
+from .forward import Experiment, model_experiment
 from .identify import check_requested
 from .motor import ESTIMATED, MotorParams
 from .record import content_sha256
@@ -44,15 +44,38 @@ from .verdict import WHITENESS_ALPHA, ljung_box
 #: Robust z-score beyond which a parameter marks a motor as an outlier.
 DEFAULT_OUTLIER_Z = 5.0
 
-#: Chunks from which a run without ``--workers`` starts a local cluster of the machine's cores: the
-#: cluster costs ~4 s to start and saves ~0.25 s a chunk of 256 on two cores (bench_fleet: 1 000
-#: motors 6.3 s in-process against 8.4 s on two workers; 10 000 motors 37.0 s against 27.4 s).
-LOCAL_CLUSTER_MIN_CHUNKS = 16
+#: Chunks each local worker process holds queued, so it never waits for the next one.
+WORKER_QUEUE = 2
 
 STATUS_CALIBRATED = "calibrated"
 STATUS_PARTIAL = "partially calibrated"
 STATUS_NOT_CONVERGED = "not converged"
 STATUS_INVALID = "invalid file"
+
+
+# --------------------------------------------------------------------------- the process
+
+
+def keep_freed_memory() -> bool:
+    """Let this process reuse the memory it frees instead of returning it to the system (glibc only).
+
+    Each chunk's fit allocates ~120 MB of temporaries, and glibc hands blocks that large out as fresh
+    mappings (from the threads XLA computes on): every page then faults on first touch, ~120 faults
+    and ~0.25 ms of system time a motor. With one malloc arena, no mappings and a high trim threshold,
+    the next chunk reuses the same pages (bench_fleet: faults a third, system time half). A batch
+    process calls this before JAX starts its threads; returns whether it applied.
+    """
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):  # not glibc (macOS, musl): nothing to tune
+        return False
+    m_trim_threshold, m_mmap_max, m_arena_max = -1, -4, -8
+    return all(mallopt(option, value) == 1
+               for option, value in ((m_arena_max, 1), (m_mmap_max, 0), (m_trim_threshold, 1 << 30)))
 
 
 # --------------------------------------------------------------------------- inputs
@@ -91,20 +114,33 @@ class _Loaded:
     reason: str | None
 
 
-def _load(path: str, motor_file: MotorFile) -> _Loaded:
-    sha = ""
-    serial = Path(path).stem
-    try:
-        content = Path(path).read_bytes()  # read once: hashed and parsed
-        sha = content_sha256(content)
-        columns = read_table(Path(path), content)
-        if "serial" in columns and columns["serial"].size:
-            serial = str(columns["serial"][0])
-        prior = motor_file.motor
-        bench = bench_from_frame(columns, path, pole_pairs=float(prior.pole_pairs), nominal_R=float(prior.R))
-        return _Loaded(path, serial, sha, bench, None)
-    except (DrivecalError, OSError) as exc:
-        return _Loaded(path, serial, sha, None, str(exc))
+def _load(paths: Sequence[str], motor_file: MotorFile) -> list[_Loaded]:
+    """Read and check a chunk's bench files; one entry per path, in order, failures with their reason.
+
+    Files laid out alike are checked together (``data.benches_from_frames``).
+    """
+    read: list[tuple[str, str, str, Any]] = []  # path, serial, sha256, columns or the reason they are missing
+    for path in paths:
+        sha, serial = "", Path(path).stem
+        try:
+            content = Path(path).read_bytes()  # read once: hashed and parsed
+            sha = content_sha256(content)
+            columns = read_table(Path(path), content)
+            if "serial" in columns and columns["serial"].size:
+                serial = str(columns["serial"][0])
+            read.append((path, serial, sha, columns))
+        except (DrivecalError, OSError) as exc:
+            read.append((path, serial, sha, str(exc)))
+    readable = [r for r in read if not isinstance(r[3], str)]
+    prior = motor_file.motor
+    checked = iter(benches_from_frames([r[3] for r in readable], [r[0] for r in readable],
+                                       pole_pairs=float(prior.pole_pairs), nominal_R=float(prior.R)))
+    loaded = []
+    for path, serial, sha, columns in read:
+        result = columns if isinstance(columns, str) else next(checked)
+        bench = result if isinstance(result, BenchData) else None
+        loaded.append(_Loaded(path, serial, sha, bench, None if bench is not None else str(result)))
+    return loaded
 
 
 def _shape_key(bench: BenchData, measured_speed: bool) -> tuple:
@@ -123,16 +159,6 @@ def _bucket(n: int, chunk: int) -> int:
 
 
 # --------------------------------------------------------------------------- diagnostics
-
-
-@functools.partial(jax.jit, static_argnames=("names",))
-def _residuals(theta: jnp.ndarray, prior: MotorParams, experiments: Experiment, currents: jnp.ndarray, names):
-    """Residuals (A) of each motor at its estimate, shape (B, M, 2)."""
-
-    def one(th, experiment):
-        return predict_currents(prior.with_vector(names, th), experiment)
-
-    return jax.vmap(one)(theta, experiments) - currents
 
 
 def residual_diagnostics(residuals: np.ndarray, segment_start: np.ndarray) -> dict:
@@ -168,17 +194,13 @@ def _failed_row(item: _Loaded, status: str, reason: str) -> dict[str, Any]:
 def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool, chunk: int) -> pd.DataFrame:
     prior, names = motor_file.motor, motor_file.names
     delay = motor_file.delay_samples
-    experiments = [it.bench.experiment(measured_speed=measured_speed, delay_samples=delay, host=True) for it in items]
     size = _bucket(len(items), chunk)
     pad = [0] * (size - len(items))  # padding repeats the first motor; its rows are dropped
-    index = list(range(len(items))) + pad
-    experiment = model_experiment(stack_experiments([experiments[i] for i in index]), prior, names)
-    currents = np.stack([items[i].bench.currents for i in index])
+    benches = [items[i].bench for i in list(range(len(items))) + pad]
+    experiment = model_experiment(stacked_experiment(benches, measured_speed, delay), prior, names)
+    currents = np.stack([bench.currents for bench in benches])
     cal = fit_currents(experiment, currents, prior, names=names, source=f"{len(items)} motors", delay_samples=delay)
-    fit_idx = [names.index(n) for n in cal.fit_names]
-    theta = np.asarray(cal.estimate)[:, fit_idx]
-    res = np.asarray(_residuals(jnp.asarray(theta), prior, experiment, jnp.asarray(currents), cal.fit_names))
-    diag = residual_diagnostics(res, np.asarray(experiment.segment_start))
+    diag = residual_diagnostics(cal.residuals, np.asarray(experiment.segment_start))
     partial = not all(cal.identifiable)
     reason_partial = "; ".join(f"{n}: {cal.identifiability.reasons.get(n, 'not identifiable')}"
                                for n, ok in zip(cal.names, cal.identifiable) if not ok)
@@ -224,7 +246,7 @@ def calibrate_files(
     """
     from . import __version__
 
-    loaded = [_load(str(p), motor_file) for p in paths]
+    loaded = _load([str(p) for p in paths], motor_file)
     failed: list[dict] = []
     fitted: list[pd.DataFrame] = []
     groups: dict[tuple, list[_Loaded]] = {}
@@ -365,8 +387,8 @@ def run_batch(
         out: results table (.parquet).
         motor_file: nominal motor (prior) and the parameters to estimate.
         chunk: motors per compiled call and per saved part.
-        workers: local worker processes (dask LocalCluster); default: the
-            machine's cores from :data:`LOCAL_CLUSTER_MIN_CHUNKS` chunks on, else in-process.
+        workers: local processes, this one included (default: the machine's
+            cores, at most one per chunk); 1 runs everything in this process.
         scheduler: address of a running dask scheduler (``tcp://host:8786``);
             chunks go to its workers instead.
         resume: keep the rows of an earlier, interrupted run of the same
@@ -439,41 +461,78 @@ def _run_chunks(
     workers: int | None,
     scheduler: str | None,
 ) -> Iterable[tuple[int, pd.DataFrame]]:
-    """Yield ``(chunk index, rows)`` as chunks finish, here or on dask workers."""
+    """Yield ``(chunk index, rows)`` as chunks finish: here, here and in local worker processes, or on dask workers."""
     if not chunks:
         return
-    if workers is None:
-        workers = min(os.cpu_count() or 1, len(chunks)) if len(chunks) >= LOCAL_CLUSTER_MIN_CHUNKS else 1
-    if scheduler is None and workers <= 1:
-        for k, paths in enumerate(chunks):
-            yield k, calibrate_files(paths, motor_file, chunk=chunk, measured_speed=measured_speed)
+    calibrate = functools.partial(calibrate_files, motor_file=motor_file, chunk=chunk, measured_speed=measured_speed)
+    if scheduler is not None:
+        yield from _on_dask(chunks, calibrate, scheduler)
         return
+    workers = min(workers or os.cpu_count() or 1, len(chunks))
+    if workers <= 1:
+        for k, paths in enumerate(chunks):
+            yield k, calibrate(paths)
+        return
+    yield from _on_local_processes(chunks, calibrate, workers)
 
-    from distributed import Client, LocalCluster, as_completed
 
-    cluster = None
+def _on_local_processes(chunks: list[list[str]], calibrate: Callable, workers: int) -> Iterable[tuple[int, pd.DataFrame]]:
+    """This process and ``workers - 1`` more take chunks from one queue.
+
+    The helpers are forked from this process while JAX has not started here (a fork then copies the
+    imported modules, not threads), else spawned; each loads the compiled fit from the persistent cache
+    and keeps it for its next chunks. They die with this process (Linux), so a killed run leaves none.
+    """
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    from jax._src.xla_bridge import backends_are_initialized
+
+    context = multiprocessing.get_context("spawn" if backends_are_initialized() else "fork")
+    with ProcessPoolExecutor(workers - 1, mp_context=context, initializer=_worker_started) as pool:
+        pending: dict = {}
+        queue = iter(enumerate(chunks))
+        for k, paths in queue:
+            while len(pending) < WORKER_QUEUE * (workers - 1):
+                j, more = next(queue, (None, None))
+                if j is None:
+                    break
+                pending[pool.submit(calibrate, more)] = j
+            yield k, calibrate(paths)  # this process's share, while the helpers work through theirs
+            for future in [f for f in pending if f.done()]:
+                yield pending.pop(future), future.result()
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                yield pending.pop(future), future.result()
+
+
+def _worker_started() -> None:
+    """A local worker process: die with the batch (Linux), and keep freed memory as the batch does."""
+    import ctypes
+    import signal
+
     try:
-        if scheduler is None:
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=40)
-            client = Client(cluster)
-        else:
-            try:
-                client = Client(scheduler, timeout="10s")
-            except OSError as exc:
-                raise DrivecalError(f"--scheduler {scheduler}: cannot connect ({exc}); start it with "
-                                    "`dask scheduler` and check the address.") from None
-        with client:
-            futures = {
-                client.submit(calibrate_files, paths, motor_file, chunk=chunk, measured_speed=measured_speed,
-                              pure=False): k
-                for k, paths in enumerate(chunks)
-            }
-            for future in as_completed(futures):
-                yield futures[future], future.result()
-    finally:
-        if cluster is not None:
-            cluster.close()
+        pr_set_pdeathsig = 1
+        ctypes.CDLL(None).prctl(pr_set_pdeathsig, signal.SIGKILL)
+    except (OSError, AttributeError):  # not Linux
+        pass
+    keep_freed_memory()
+
+
+def _on_dask(chunks: list[list[str]], calibrate: Callable, scheduler: str) -> Iterable[tuple[int, pd.DataFrame]]:
+    """Send every chunk to the workers of a running dask scheduler; yield them as they finish."""
+    from distributed import Client, as_completed
+
+    try:
+        client = Client(scheduler, timeout="10s")
+    except OSError as exc:
+        raise DrivecalError(f"--scheduler {scheduler}: cannot connect ({exc}); start it with "
+                            "`dask scheduler` and check the address.") from None
+    with client:
+        futures = {client.submit(calibrate, paths, pure=False): k for k, paths in enumerate(chunks)}
+        for future in as_completed(futures):
+            yield futures[future], future.result()
 
 
 # --------------------------------------------------------------------------- synthetic fleets

@@ -118,10 +118,14 @@ class Experiment(eqx.Module):
     ) -> Experiment:
         """Lay segments end to end.
 
+        Every per-segment array may carry the same leading axes (a stack of
+        datasets of one plan shape, e.g. a fleet's benches); the experiment
+        then has them on every field, as :func:`stack_experiments` gives.
+
         Args:
             voltages: per segment, commanded ``[v_d, v_q]`` (V), shape (N_s, 2).
             locked: per segment, whether the rotor is locked.
-            sample_period: seconds between samples.
+            sample_period: seconds between samples (one per dataset of a stack).
             initial_states: per segment, the starting state (default: rest).
             speeds: per segment, a measured speed (rad/s, shape (N_s,)) to use
                 as an input, or None to simulate the speed from J and B.
@@ -136,45 +140,51 @@ class Experiment(eqx.Module):
             host: keep the arrays in numpy (a fleet stacks thousands of
                 experiments: one transfer for the stack, not one per field and motor).
         """
+        batch = np.shape(voltages[0])[:-2]  # leading axes: one experiment per dataset (see stack_experiments)
         applied, starts, lock, x0, speed, use, temp, theta, theta0 = [], [], [], [], [], [], [], [], []
         layout, at = [], 0
         for s, v in enumerate(voltages):
-            n = v.shape[0]
+            n = v.shape[-2]
             measured = speeds is not None and speeds[s] is not None
             layout.append((at, at + n, "measured" if measured else "locked" if locked[s] else "free"))
             at += n
             init = np.zeros(4) if initial_states is None else np.asarray(initial_states[s], dtype=float)
-            applied.append(delayed(v, delay_samples, at_rest=not np.any(init[:3])))
+            init = np.broadcast_to(init, batch + (4,))
+            applied.append(delayed(v, delay_samples, at_rest=~np.any(init[..., :3] != 0.0, axis=-1)))
             t_s = None if temperatures is None else temperatures[s]
-            temp.append(np.full(n, np.nan) if t_s is None else np.broadcast_to(np.asarray(t_s, dtype=float), (n,)))
+            temp.append(np.full(batch + (n,), np.nan) if t_s is None
+                        else np.broadcast_to(np.asarray(t_s, dtype=float), batch + (n,)))
             a_s = None if angles is None else angles[s]
-            theta.append(np.full(n, np.nan) if a_s is None else np.asarray(a_s, dtype=float))
-            theta0.append(np.full(n, 0.0 if a_s is None else float(a_s[0])))
+            theta.append(np.full(batch + (n,), np.nan) if a_s is None else np.asarray(a_s, dtype=float))
+            # The measured angle at the start, else 0 (also for a dataset of a stack that has none: NaN).
+            a0 = 0.0 if a_s is None else np.asarray(a_s, dtype=float)[..., :1]
+            theta0.append(np.broadcast_to(np.where(np.isfinite(a0), a0, 0.0), batch + (n,)))
             start = np.zeros(n, dtype=bool)
             start[0] = True
-            starts.append(start)
-            lock.append(np.full(n, float(locked[s])))
+            starts.append(np.broadcast_to(start, batch + (n,)))
+            lock.append(np.full(batch + (n,), float(locked[s])))
             w = None if speeds is None else speeds[s]
             if w is None:
-                speed.append(np.zeros((n, 3)))
-                use.append(np.zeros(n))
+                speed.append(np.zeros(batch + (n, 3)))
+                use.append(np.zeros(batch + (n,)))
             else:
-                speed.append(_speed_at_stages(np.asarray(w, dtype=float)))
-                use.append(np.ones(n))
-                init = np.array([init[0], init[1], w[0], init[3]])
-            x0.append(np.broadcast_to(init, (n, 4)))
+                w = np.asarray(w, dtype=float)
+                speed.append(_speed_at_stages(w))
+                use.append(np.ones(batch + (n,)))
+                init = np.concatenate([init[..., :2], w[..., :1], init[..., 3:]], axis=-1)
+            x0.append(np.broadcast_to(init[..., None, :], batch + (n, 4)))
         xp = np if host else jnp
         return cls(
-            voltages=xp.asarray(np.concatenate(applied, axis=0), dtype=float),
-            locked=xp.asarray(np.concatenate(lock)),
-            segment_start=xp.asarray(np.concatenate(starts)),
-            initial_state=xp.asarray(np.concatenate(x0, axis=0)),
-            sample_period=xp.asarray(float(sample_period)),
-            speed=xp.asarray(np.concatenate(speed, axis=0)),
-            speed_input=xp.asarray(np.concatenate(use)),
-            temperature=xp.asarray(np.concatenate(temp)),
-            theta_e=xp.asarray(np.concatenate(theta)),
-            theta_e_start=xp.asarray(np.concatenate(theta0)),
+            voltages=xp.asarray(np.concatenate(applied, axis=-2), dtype=float),
+            locked=xp.asarray(np.concatenate(lock, axis=-1)),
+            segment_start=xp.asarray(np.concatenate(starts, axis=-1)),
+            initial_state=xp.asarray(np.concatenate(x0, axis=-2)),
+            sample_period=xp.asarray(np.broadcast_to(np.asarray(sample_period, dtype=float), batch)),
+            speed=xp.asarray(np.concatenate(speed, axis=-2)),
+            speed_input=xp.asarray(np.concatenate(use, axis=-1)),
+            temperature=xp.asarray(np.concatenate(temp, axis=-1)),
+            theta_e=xp.asarray(np.concatenate(theta, axis=-1)),
+            theta_e_start=xp.asarray(np.concatenate(theta0, axis=-1)),
             thermal=temperatures is not None and any(t is not None for t in temperatures),
             segments=tuple(layout),
         )
@@ -211,12 +221,13 @@ class Experiment(eqx.Module):
         return bool(np.any(np.isfinite(np.asarray(self.theta_e))))
 
 
-def delayed(voltages: np.ndarray, delay_samples: int, *, at_rest: bool = True) -> np.ndarray:
-    """The voltages an inverter with a ``delay_samples`` PWM/computation delay applies, shape (N, 2) (V).
+def delayed(voltages: np.ndarray, delay_samples: int, *, at_rest: bool | np.ndarray = True) -> np.ndarray:
+    """The voltages an inverter with a ``delay_samples`` PWM/computation delay applies, shape (..., N, 2) (V).
 
     Command k acts at sample k + delay_samples; before the first command acts
     the inverter applies 0 V (a segment from rest) or the first command (a
-    segment that starts moving, whose earlier command is unknown).
+    segment that starts moving, whose earlier command is unknown); ``at_rest``
+    is one flag, or one per dataset of a stack (the leading axes).
     """
     if int(delay_samples) != delay_samples or delay_samples < 0:
         raise ValueError(f"delay_samples must be a whole number of samples >= 0, got {delay_samples!r}")
@@ -224,21 +235,24 @@ def delayed(voltages: np.ndarray, delay_samples: int, *, at_rest: bool = True) -
     v = np.asarray(voltages, dtype=float)
     if d == 0:
         return v
-    pad = np.zeros((d, 2)) if at_rest else np.broadcast_to(v[:1], (d, 2))
-    return np.concatenate([pad, v], axis=0)[: v.shape[0]]
+    # Per dataset of a stack (leading axes): 0 V from rest, else the first command.
+    rest = np.asarray(at_rest, dtype=bool)[..., None, None]
+    pad = np.where(rest, 0.0, np.broadcast_to(v[..., :1, :], v.shape[:-2] + (d, 2)))
+    return np.concatenate([pad, v], axis=-2)[..., : v.shape[-2], :]
 
 
 def _speed_at_stages(w: np.ndarray) -> np.ndarray:
-    """``[w_k, w_(k+1/2), w_(k+1)]`` (rad/s) from samples ``w`` (N,): cubic midpoints, shape (N, 3).
+    """``[w_k, w_(k+1/2), w_(k+1)]`` (rad/s) from samples ``w`` (..., N): cubic midpoints, shape (..., N, 3).
 
     Linear interpolation of the speed at the RK4 midpoint costs ~1e-5 A; the
     four-point cubic midpoint brings the forward model back to ~1e-8 A.
     """
     # Linear extrapolation by one sample at the start and two at the end;
     # the values past the last sample are never read back.
-    ext = np.concatenate([[2 * w[0] - w[1]], w, [2 * w[-1] - w[-2], 3 * w[-1] - 2 * w[-2]]])
-    w_mid = (-ext[:-3] + 9.0 * ext[1:-2] + 9.0 * ext[2:-1] - ext[3:]) / 16.0
-    return np.stack([w, w_mid, ext[2:-1]], axis=1)
+    first, last, before = w[..., :1], w[..., -1:], w[..., -2:-1]
+    ext = np.concatenate([2 * first - w[..., 1:2], w, 2 * last - before, 3 * last - 2 * before], axis=-1)
+    w_mid = (-ext[..., :-3] + 9.0 * ext[..., 1:-2] + 9.0 * ext[..., 2:-1] - ext[..., 3:]) / 16.0
+    return np.stack([w, w_mid, ext[..., 2:-1]], axis=-1)
 
 
 def _quadratic(speed: Any, u: float) -> Any:
@@ -644,6 +658,14 @@ def current_parts(experiment: Experiment, currents: Any) -> tuple:
     if not _segmented(experiment):
         return currents[:, 0], currents[:, 1]
     return tuple(currents[start:stop, j] for start, stop, _ in experiment.segments for j in (0, 1))
+
+
+def join_current_parts(experiment: Experiment, parts: tuple) -> Any:
+    """Parts as :func:`current_parts` splits them, laid end to end again: shape (M, 2) (A)."""
+    if not _segmented(experiment):
+        return jnp.stack(parts, axis=1)
+    pairs = [jnp.stack(parts[2 * s : 2 * s + 2], axis=1) for s in range(len(experiment.segments))]
+    return pairs[0] if len(pairs) == 1 else jnp.concatenate(pairs, axis=0)
 
 
 def predicted_currents(motor: MotorParams, experiment: Experiment) -> np.ndarray:
