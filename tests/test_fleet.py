@@ -99,7 +99,7 @@ def test_killed_run_resumes_without_losing_or_repeating_a_motor(tmp_path):
         assert time.monotonic() < deadline
         time.sleep(0.005)
     os.kill(proc.pid, signal.SIGKILL)
-    proc.wait()
+    proc.communicate()  # reaps it and closes its pipes
     written = len(list(parts.glob("part-*.parquet")))
     assert not out.exists() and 2 <= written < 24  # killed mid-run
 
@@ -137,6 +137,20 @@ def test_dask_cluster_and_local_processes_give_the_same_table(tmp_path):
         assert a["serial"].tolist() == b["serial"].tolist()
         for name in dc.ESTIMATED:
             np.testing.assert_allclose(a[name], b[name], rtol=1e-10)
+
+
+def test_resume_after_parts_finished_out_of_order(tmp_path):
+    """Chunks finish out of order, so a killed run can leave part 1 without part 0; resuming keeps it."""
+    fleet.synthetic_fleet(tmp_path / "in", 8, seed=6)
+    files = [str(p) for p in fleet.discover([tmp_path / "in"])]
+    out = tmp_path / "r.parquet"
+    parts = fleet.parts_dir(out)
+    parts.mkdir()
+    fleet.calibrate_files(files[4:], MOTOR, chunk=4).to_parquet(parts / "part-000001.parquet", index=False)
+    summary = fleet.run_batch([tmp_path / "in"], out, MOTOR, chunk=4, workers=1, resume=True)
+    table = pd.read_parquet(out)
+    assert summary.done_before == 4 and summary.total == 8
+    assert sorted(table["file"]) == files
 
 
 def test_existing_results_need_resume(tmp_path, capsys):

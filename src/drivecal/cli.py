@@ -603,7 +603,7 @@ def batch(inputs, out_path, motor_path, chunk, workers, scheduler, resume, measu
 
     if workers is not None and scheduler is not None:
         raise click.UsageError("give --workers (local processes) or --scheduler (a dask cluster), not both")
-    drivecal.fleet.keep_freed_memory()  # this process is the batch: before JAX starts its threads
+    drivecal.fleet.tune_for_batch()  # this process is the batch: before JAX starts its threads
     motor_file = drivecal.load_motor(motor_path)
     console = _console(as_json)
     show = not as_json and console.is_terminal

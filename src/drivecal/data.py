@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa  # loaded by pandas already
 
 from .errors import DataError
 from .forward import Experiment
@@ -292,10 +293,8 @@ def read_table(path: Path, content: bytes | None = None) -> Columns:
         if suffix == ".parquet":
             # Arrow columns straight to numpy: no DataFrame (pandas' conversion and lookups cost
             # ~1 ms a file, which a fleet pays per motor). Nulls become NaN (numbers) or None (text).
-            import pyarrow as pa
-
             table = _read_parquet(path if content is None else pa.BufferReader(content))
-            return {name: _arrow_to_numpy(table.column(name)) for name in table.column_names}
+            return {name: _arrow_to_numpy(column) for name, column in zip(table.column_names, table.columns)}
         source = path if content is None else io.BytesIO(content)
         if suffix == ".csv":
             return columns_of(pd.read_csv(source))
@@ -315,23 +314,24 @@ def _read_parquet(source: Any) -> Any:
     """A Parquet file as an Arrow table, the text columns of :data:`TEXT_COLUMNS` it has dictionary-encoded."""
     import pyarrow.parquet as pq
 
+    def read(text):
+        return pq.ParquetFile(source, read_dictionary=list(text)).read(use_threads=False)
+
     # Naming a column the file lacks fails; try the usual sets before opening the file twice.
     for text in (TEXT_COLUMNS, TEXT_COLUMNS[:1]):
         try:
-            return pq.ParquetFile(source, read_dictionary=list(text)).read(use_threads=False)
+            return read(text)
         except KeyError:
             if hasattr(source, "seek"):
                 source.seek(0)
     names = set(pq.ParquetFile(source).schema_arrow.names)
     if hasattr(source, "seek"):
         source.seek(0)
-    return pq.ParquetFile(source, read_dictionary=[c for c in TEXT_COLUMNS if c in names]).read(use_threads=False)
+    return read([c for c in TEXT_COLUMNS if c in names])
 
 
 def _arrow_to_numpy(column: Any) -> np.ndarray:
     """One Arrow column as numpy: dictionary-encoded text as an object array of its labels (None where null)."""
-    import pyarrow as pa
-
     if isinstance(column, pa.ChunkedArray):
         column = column.chunk(0) if column.num_chunks == 1 else column.combine_chunks()
     if not pa.types.is_dictionary(column.type):
