@@ -44,9 +44,6 @@ from .verdict import WHITENESS_ALPHA, ljung_box
 #: Robust z-score beyond which a parameter marks a motor as an outlier.
 DEFAULT_OUTLIER_Z = 5.0
 
-#: Chunks each local worker process holds queued, so it never waits for the next one.
-WORKER_QUEUE = 2
-
 STATUS_CALIBRATED = "calibrated"
 STATUS_PARTIAL = "partially calibrated"
 STATUS_NOT_CONVERGED = "not converged"
@@ -227,7 +224,7 @@ def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool
     size = _bucket(len(items), chunk)
     pad = [0] * (size - len(items))  # padding repeats the first motor; its rows are dropped
     benches = [items[i].bench for i in list(range(len(items))) + pad]
-    experiment = model_experiment(stacked_experiment(benches, measured_speed, delay), prior, names)
+    experiment = model_experiment(stacked_experiment(benches, measured_speed, delay, host=True), prior, names)
     currents = np.stack([bench.currents for bench in benches])
     cal = fit_currents(experiment, currents, prior, names=names, source=f"{len(items)} motors", delay_samples=delay)
     diag = residual_diagnostics(cal.residuals, np.asarray(experiment.segment_start))
@@ -513,34 +510,51 @@ def _run_chunks(
 
 
 def _on_local_processes(chunks: list[list[str]], calibrate: Callable, workers: int) -> Iterable[tuple[int, pd.DataFrame]]:
-    """This process and ``workers - 1`` more take chunks from one queue.
+    """This process and ``workers - 1`` more take chunks from one queue, each the next as it finishes.
 
     The helpers are forked from this process while JAX has not started here (a fork then copies the
     imported modules, not threads), else spawned; each loads the compiled fit from the persistent cache
     and keeps it for its next chunks. They die with this process (Linux), so a killed run leaves none.
     """
     import multiprocessing
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    import queue
+    import threading
+    from concurrent.futures import ProcessPoolExecutor
 
     from jax._src.xla_bridge import backends_are_initialized
 
+    todo, lock, finished, stop = iter(enumerate(chunks)), threading.Lock(), queue.Queue(), threading.Event()
+
+    def take():
+        with lock:
+            return None if stop.is_set() else next(todo, None)
+
     context = multiprocessing.get_context("spawn" if backends_are_initialized() else "fork")
     with ProcessPoolExecutor(workers - 1, mp_context=context, initializer=_worker_started) as pool:
-        pending: dict = {}
-        queue = iter(enumerate(chunks))
-        for k, paths in queue:
-            while len(pending) < WORKER_QUEUE * (workers - 1):
-                j, more = next(queue, (None, None))
-                if j is None:
-                    break
-                pending[pool.submit(calibrate, more)] = j
-            yield k, calibrate(paths)  # this process's share, while the helpers work through theirs
-            for future in [f for f in pending if f.done()]:
-                yield pending.pop(future), future.result()
-        while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for future in done:
-                yield pending.pop(future), future.result()
+
+        def feed(_done=None) -> None:
+            """Hand a helper its next chunk (called again as each of its chunks finishes)."""
+            item = take()
+            if item is not None:
+                pool.submit(calibrate, item[1]).add_done_callback(lambda f, k=item[0]: (finished.put((k, f)), feed()))
+
+        try:
+            for _ in range(workers - 1):
+                feed()
+            done = 0
+            while (item := take()) is not None:
+                yield item[0], calibrate(item[1])  # this process's share, while the helpers work through theirs
+                done += 1
+                while not finished.empty():
+                    k, future = finished.get()
+                    done += 1
+                    yield k, future.result()
+            while done < len(chunks):
+                k, future = finished.get()
+                done += 1
+                yield k, future.result()
+        finally:
+            stop.set()  # on an error or interrupt, no helper starts another chunk
 
 
 def _worker_started() -> None:
