@@ -2,20 +2,27 @@
 
 For 10, 100, 1 000 and 10 000 motors of the default plan (one Parquet bench
 file each, 2 % manufacturing spread, 20 mA noise, measured speed), runs
-`drivecal batch DIR --out ... --json` in a fresh process, in-process
-(`--workers 1`) and on a 2-worker dask LocalCluster (`--workers 2`), and
-records wall time, motors/s and the peak resident memory of the largest
-process (chunking must keep it flat as the count grows). Then runs the same
-100-motor batch twice with an empty persistent compilation cache to show what
-the cache saves on the second invocation.
+`drivecal batch DIR --out ... --json` as a fresh process in three ways:
 
-Everything is in fresh processes, so the times include start-up and
-file reading; each count is run once untimed first so that the compiled fit
-comes from the persistent cache, as it does for every batch after a line's
-first one (the cold start is measured separately). Prints a table and writes
-benchmarks/results/bench_fleet.json.
+- `--workers 1`: everything in that process;
+- `--workers 2`: that process and one helper forked from it (this machine's 2 cores);
+- `--scheduler ADDRESS`: chunks sent to a 2-worker dask LocalCluster that the
+  benchmark starts once (as a production cluster runs between batches: its
+  workers compile on their first chunk and keep the fit).
 
-    .venv/bin/python benchmarks/bench_fleet.py [--counts 10 100 1000 10000] [--chunk 256]
+It records wall time, motors/s and the peak resident memory of the largest
+process (chunking must keep it flat as the count grows); each is run
+``--repeats`` times and the median and best are reported, since this
+machine's speed drifts by tens of percent from one minute to the next. Then
+it runs the same 100-motor batch twice with an empty persistent compilation
+cache to show what the cache saves on the second invocation.
+
+Times include start-up and file reading; each count is run once untimed first
+so that the compiled fit comes from the persistent cache, as it does for every
+batch after a line's first one (the cold start is measured separately).
+Prints a table and writes benchmarks/results/bench_fleet.json.
+
+    .venv/bin/python benchmarks/bench_fleet.py [--counts 10 100 1000 10000] [--chunk 256] [--repeats 3]
 """
 
 from __future__ import annotations
@@ -43,10 +50,15 @@ def _generate(root: Path, count: int) -> Path:
     return directory
 
 
-def _run_batch(directory: Path, out: Path, workers: int, chunk: int, env: dict | None = None) -> dict:
+def _where(mode: str) -> list[str]:
+    """The CLI options that place the chunks: ``"1"``/``"2"`` local processes, else a scheduler address."""
+    return ["--workers", mode] if mode.isdigit() else ["--scheduler", mode]
+
+
+def _run_batch(directory: Path, out: Path, mode: str, chunk: int, env: dict | None = None) -> dict:
     """One `drivecal batch` in a fresh process: wall time and motors/s."""
-    cmd = [str(DRIVECAL), "batch", str(directory), "--out", str(out), "--chunk", str(chunk),
-           "--workers", str(workers), "--json"]
+    cmd = [str(DRIVECAL), "batch", str(directory), "--out", str(out), "--chunk", str(chunk), *_where(mode),
+           "--json"]
     start = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, **(env or {})})
@@ -58,11 +70,11 @@ def _run_batch(directory: Path, out: Path, workers: int, chunk: int, env: dict |
     return {"wall_s": wall, "motors": summary["total"], "motors_per_s": summary["total"] / wall}
 
 
-def _peak_rss_of(directory: Path, out: Path, workers: int, chunk: int) -> dict:
+def _peak_rss_of(directory: Path, out: Path, mode: str, chunk: int) -> dict:
     """Run the batch in a child Python that reports its own children's peak RSS (isolated from earlier runs)."""
     code = (
         "import json, resource, sys, time, subprocess, os\n"
-        f"cmd = {[str(DRIVECAL), 'batch', str(directory), '--out', str(out), '--chunk', str(chunk), '--workers', str(workers), '--json']!r}\n"  # noqa: E501
+        f"cmd = {[str(DRIVECAL), 'batch', str(directory), '--out', str(out), '--chunk', str(chunk), *_where(mode), '--json']!r}\n"  # noqa: E501
         "t = time.perf_counter(); p = subprocess.run(cmd, capture_output=True, text=True)\n"
         "wall = time.perf_counter() - t\n"
         "if p.returncode not in (0, 1): sys.exit(p.stderr[-2000:])\n"
@@ -82,37 +94,55 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--counts", type=int, nargs="+", default=[10, 100, 1000, 10000])
     parser.add_argument("--chunk", type=int, default=256)
+    parser.add_argument("--repeats", type=int, default=3, help="timed runs of each count and placement")
     parser.add_argument("--warm-up-max", type=int, default=1000,
                         help="run counts up to this once untimed first (warm persistent cache)")
     parser.add_argument("--workdir", type=Path, default=None, help="keep generated fleets here (default: a temp dir)")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
 
+    import statistics
+
+    from distributed import LocalCluster
+
     import drivecal
 
     root = args.workdir or Path(tempfile.mkdtemp(prefix="drivecal-fleet-bench-"))
     root.mkdir(parents=True, exist_ok=True)
     rows = []
-    for count in args.counts:
-        t = time.perf_counter()
-        directory = _generate(root, count)
-        generated = time.perf_counter() - t
-        if count <= args.warm_up_max:
-            # One untimed invocation first, so the timed ones find the compiled fit for this count's
-            # batch shapes in the persistent cache, as every batch after the first one on a line does
-            # (10 000 motors use the shapes of 1 000 and 10: 256 and 16). The cold start is measured below.
-            warm = root / f"results_{count}_warm.parquet"
-            subprocess.run(["rm", "-rf", str(warm), str(warm) + ".parts"], check=True)
-            _run_batch(directory, warm, 1, args.chunk)
-        for workers in (1, 2):
-            out = root / f"results_{count}_w{workers}.parquet"
-            for stale in (out, out.with_name(out.name + ".parts")):
-                subprocess.run(["rm", "-rf", str(stale)], check=True)
-            row = _peak_rss_of(directory, out, workers, args.chunk)
-            row.update(count=count, workers=workers, generate_s=generated)
-            rows.append(row)
-            print(f"{count:>6} motors, {workers} worker(s): {row['wall_s']:8.1f} s  {row['motors_per_s']:8.1f} motors/s"
-                  f"  peak RSS {row['peak_rss_mib']:7.0f} MiB", flush=True)
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                           silence_logs=40)
+    modes = {"1 process": "1", "2 processes": "2", "dask, 2 workers": cluster.scheduler_address}
+    try:
+        for count in args.counts:
+            t = time.perf_counter()
+            directory = _generate(root, count)
+            generated = time.perf_counter() - t
+            if count <= args.warm_up_max:
+                # One untimed invocation first, so the timed ones find the compiled fit for this count's
+                # batch shape in the persistent cache, as every batch after the first one on a line does
+                # (chunks are of equal size: 10 000 motors use the shape of 1 000, 256). The cold start
+                # is measured below.
+                warm = root / f"results_{count}_warm.parquet"
+                subprocess.run(["rm", "-rf", str(warm), str(warm) + ".parts"], check=True)
+                _run_batch(directory, warm, "1", args.chunk)
+            for label, mode in modes.items():
+                runs = []
+                for _ in range(args.repeats):
+                    out = root / f"results_{count}.parquet"
+                    subprocess.run(["rm", "-rf", str(out), str(out) + ".parts"], check=True)
+                    runs.append(_peak_rss_of(directory, out, mode, args.chunk))
+                walls = [r["wall_s"] for r in runs]
+                row = {"count": count, "placement": label, "wall_s": statistics.median(walls), "best_s": min(walls),
+                       "walls_s": walls, "motors_per_s": count / statistics.median(walls),
+                       "best_motors_per_s": count / min(walls),
+                       "peak_rss_mib": max(r["peak_rss_mib"] for r in runs), "generate_s": generated}
+                rows.append(row)
+                print(f"{count:>6} motors, {label:>15}: median {row['wall_s']:6.1f} s ({row['motors_per_s']:7.1f} "
+                      f"motors/s), best {row['best_s']:6.1f} s ({row['best_motors_per_s']:7.1f} motors/s), "
+                      f"peak RSS {row['peak_rss_mib']:5.0f} MiB", flush=True)
+    finally:
+        cluster.close()
 
     # The persistent compilation cache: the same batch twice, starting from an empty cache.
     cache_rows = []
@@ -123,15 +153,16 @@ def main() -> None:
                            ("second, warm cache", {"DRIVECAL_JAX_CACHE_DIR": cache})):
             out = root / "results_cache.parquet"
             subprocess.run(["rm", "-rf", str(out), str(out) + ".parts"], check=True)
-            r = _run_batch(directory, out, 1, args.chunk, env)
+            r = _run_batch(directory, out, "1", args.chunk, env)
             cache_rows.append({"run": label, "wall_s": r["wall_s"]})
             print(f"100 motors, {label:>20}: {r['wall_s']:6.1f} s", flush=True)
 
     print()
-    print(f"{'motors':>8} {'workers':>8} {'wall [s]':>10} {'motors/s':>10} {'peak RSS [MiB]':>15}")
+    print(f"{'motors':>8} {'placement':>16} {'median [s]':>11} {'motors/s':>10} {'best [s]':>9} {'motors/s':>10} "
+          f"{'peak RSS [MiB]':>15}")
     for r in rows:
-        print(f"{r['count']:>8} {r['workers']:>8} {r['wall_s']:>10.1f} {r['motors_per_s']:>10.1f} "
-              f"{r['peak_rss_mib']:>15.0f}")
+        print(f"{r['count']:>8} {r['placement']:>16} {r['wall_s']:>11.1f} {r['motors_per_s']:>10.1f} "
+              f"{r['best_s']:>9.1f} {r['best_motors_per_s']:>10.1f} {r['peak_rss_mib']:>15.0f}")
     print()
     for r in cache_rows:
         print(f"  100 motors, {r['run']:>20}: {r['wall_s']:.1f} s")
@@ -140,9 +171,11 @@ def main() -> None:
         "chunk": args.chunk,
         "runs": rows,
         "compile_cache": cache_rows,
-        "note": ("fresh process per run: times include start-up and file reading; counts up to "
-                 f"{args.warm_up_max} ran once untimed first, so the compiled fit came from the persistent "
-                 "cache (compile_cache: the same batch from an empty cache)"),
+        "repeats": args.repeats,
+        "note": ("fresh `drivecal batch` process per run: times include start-up and file reading (not the dask "
+                 f"cluster's start: it runs throughout); counts up to {args.warm_up_max} ran once untimed first, "
+                 "so the compiled fit came from the persistent cache (compile_cache: the same batch from an "
+                 "empty cache); wall_s is the median of the repeats, best_s the fastest"),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(payload, indent=2) + "\n")

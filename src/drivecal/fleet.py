@@ -1,11 +1,13 @@
 """Fleet calibration: every motor off the line, one results table.
 
-One bench file per motor. Files are read and checked, grouped by plan shape
-(segment lengths, rotor conditions, speed input) and fitted together: one
-``jit(vmap(...))`` call per group and chunk, each motor with its own applied
-voltages and measured speed. Batch sizes are rounded up to powers of two
-(padding repeats a real motor and is dropped), so a process compiles each
-shape a handful of times at most and reuses it for the rest of the run.
+One bench file per motor. A chunk's files are read and checked together
+(``data.benches_from_frames``), grouped by plan shape (segment lengths, rotor
+conditions, speed input) and fitted together: one ``jit(vmap(...))`` call per
+group and chunk, each motor with its own applied voltages and measured speed.
+A run's chunks are of equal size and batch sizes are rounded up to powers of
+two (padding repeats a real motor and is dropped), so a process compiles each
+shape once or twice and reuses it for the rest of the run. Chunks run in this
+process, in local helper processes, or on a dask cluster.
 
 Nothing is lost: every input file yields exactly one row, a file that fails
 validation or a fit that does not converge included, with its reason. Rows are
@@ -387,6 +389,12 @@ def _read_done(out: Path) -> pd.DataFrame:
     parts = parts_dir(out)
     if parts.is_dir():
         tables += [pd.read_parquet(p) for p in sorted(parts.glob("part-*.parquet"))]
+    return _combine(tables)
+
+
+def _combine(tables: list[pd.DataFrame]) -> pd.DataFrame:
+    """Rows of several runs or parts as one table: the latest row per file, without fleet columns."""
+    tables = [t for t in tables if len(t)]
     if not tables:
         return pd.DataFrame()
     done = pd.concat(tables, ignore_index=True)
@@ -458,12 +466,14 @@ def run_batch(
 
     progress(len(done_files & set(files)), len(files))
     finished = len(done_files & set(files))
+    fresh = []
     for k, table in _run_chunks(chunks, motor_file, chunk, measured_speed, workers, scheduler):
         save(k, table)
+        fresh.append(table)
         finished += len(table)
         progress(finished, len(files))
 
-    table = _read_done(out)  # this run's rows and any earlier ones
+    table = _combine([done] + fresh)  # the earlier runs' rows and this run's (as saved in the parts)
     order = {f: i for i, f in enumerate(files)}
     table = table.assign(_order=table["file"].map(order).fillna(len(files))).sort_values(["_order", "file"])
     table = fleet_checks(table.drop(columns="_order").reset_index(drop=True), outlier_z)
