@@ -504,7 +504,7 @@ def _run_chunks(
     workers: int | None,
     scheduler: str | None,
 ) -> Iterable[tuple[int, pd.DataFrame]]:
-    """Yield ``(chunk index, rows)`` as chunks finish: here, here and in local worker processes, or on dask workers."""
+    """Yield ``(chunk index, rows)`` as chunks finish: in this process, in it and local helpers, or on dask workers."""
     if not chunks:
         return
     calibrate = functools.partial(calibrate_files, motor_file=motor_file, chunk=chunk, measured_speed=measured_speed)
@@ -531,7 +531,11 @@ def _on_local_processes(chunks: list[list[str]], calibrate: Callable, workers: i
     import threading
     from concurrent.futures import ProcessPoolExecutor
 
-    from jax._src.xla_bridge import backends_are_initialized
+    try:
+        from jax._src.xla_bridge import backends_are_initialized
+    except ImportError:  # another JAX: assume it runs here, and spawn
+        def backends_are_initialized() -> bool:
+            return True
 
     todo, lock, finished, stop = iter(enumerate(chunks)), threading.Lock(), queue.Queue(), threading.Event()
 
