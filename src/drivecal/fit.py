@@ -329,7 +329,7 @@ def _solve_compiled(currents, start, prior, experiment, names, fit_names, option
     batch = currents.shape[0]
     if batch > SOLVE_TILE and batch % SOLVE_TILE == 0:
         # Tile by tile, each tile's LM loop vmapped: its working set (Jacobians, states) stays in cache
-        # and a tile stops when its own fits have (25 % faster a motor in a fleet's batch of 256).
+        # and a tile stops when its own fits have (~15 % faster a motor in a fleet's batch of 256).
         def tile(args):
             cur, z, exp = args if per_dataset else (*args, experiment)
             return _solve_one(cur, z, prior, exp, fit_names, options, record)
