@@ -165,3 +165,18 @@ def test_existing_results_need_resume(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["batch", str(tmp_path / "nothing-here"), "--out", str(tmp_path / "x.parquet")])
     assert "no bench files" in capsys.readouterr().err
+
+
+def test_requested_parameters_are_checked_per_motor(tmp_path):
+    """With 'estimate' in the motor file, a file whose run cannot show a requested parameter is refused."""
+    fleet.synthetic_fleet(tmp_path / "in", 4, seed=7)
+    bad = pd.read_parquet(tmp_path / "in" / "SN000003.parquet")
+    bad.loc[bad["locked"] == 0, "locked"] = 1  # no free rotor: lambda_m cannot show
+    bad.to_parquet(tmp_path / "in" / "SN000003.parquet", index=False)
+    motor = tmp_path / "motor.toml"
+    motor.write_text('estimate = ["R", "Ld", "Lq", "lambda_m"]\n')
+    summary = fleet.run_batch([tmp_path / "in"], tmp_path / "r.parquet", dc.load_motor(motor), chunk=4, workers=1)
+    table = pd.read_parquet(tmp_path / "r.parquet").set_index("serial")
+    assert summary.failed == 1 and summary.calibrated == 3
+    assert table.loc["SN000003", "status"] == fleet.STATUS_INVALID
+    assert "lambda_m is requested" in table.loc["SN000003", "reason"]

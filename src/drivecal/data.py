@@ -9,8 +9,10 @@ Instead of dq columns a file may hold phase quantities ``i_a``, ``i_b``
 angle ``theta_e`` (electrical, rad) or ``theta_m`` (mechanical, rad); they are
 turned into dq with the amplitude-invariant Clarke and Park transforms.
 
-Every check of a file lives in :func:`bench_from_frame`; each failure is one
-:class:`DataError` sentence naming the file, the column and the fix.
+Every check of a file lives in :func:`bench_from_frame` (its per-segment
+predicates are shared with :func:`benches_from_frames`, which checks many files
+laid out alike at once); each failure is one :class:`DataError` sentence
+naming the file, the column and the fix.
 """
 
 from __future__ import annotations

@@ -285,7 +285,7 @@ def calibrate_files(
             continue
         if motor_file.estimate is not None:
             try:
-                check_requested(motor_file.names, item.bench.experiment(measured_speed), item.path)
+                check_requested(motor_file.names, item.bench.experiment(measured_speed, host=True), item.path)
             except DrivecalError as exc:
                 failed.append(_failed_row(item, STATUS_INVALID, str(exc)))
                 continue
