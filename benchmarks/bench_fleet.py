@@ -17,12 +17,16 @@ machine's speed drifts by tens of percent from one minute to the next. Then
 it runs the same 100-motor batch twice with an empty persistent compilation
 cache to show what the cache saves on the second invocation.
 
-Times include start-up and file reading; each count is run once untimed first
+Times include start-up and file reading. Before each timed run the bench files
+are put in the page cache (``--page-cache warm``: as just written by the test
+benches) or dropped from it (``cold``: a backlog on disk; Linux, root), so
+every run starts alike. Each count is run once untimed first
 so that the compiled fit comes from the persistent cache, as it does for every
 batch after a line's first one (the cold start is measured separately).
 Prints a table and writes benchmarks/results/bench_fleet.json.
 
     .venv/bin/python benchmarks/bench_fleet.py [--counts 10 100 1000 10000] [--chunk 256] [--repeats 3]
+        [--page-cache warm|cold|both]
 """
 
 from __future__ import annotations
@@ -48,6 +52,23 @@ def _generate(root: Path, count: int) -> Path:
     if not directory.exists():
         fleet.synthetic_fleet(directory, count, seed=count)
     return directory
+
+
+def _set_page_cache(directory: Path, state: str) -> None:
+    """Put the fleet's bench files in the page cache (``"warm"``: as just written by the benches) or out of it
+    (``"cold"``: as on a backlog or a network share; drops the whole system's page cache, Linux and root only)."""
+    if state == "warm":
+        for entry in os.scandir(directory):
+            with open(entry.path, "rb") as f:
+                while f.read(1 << 20):
+                    pass
+        return
+    os.sync()
+    try:
+        Path("/proc/sys/vm/drop_caches").write_text("3\n")
+    except OSError as exc:
+        sys.exit(f"--page-cache cold: cannot drop the page cache ({exc}); it needs Linux and root. Use "
+                 "--page-cache warm.")
 
 
 def _where(mode: str) -> list[str]:
@@ -97,6 +118,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="timed runs of each count and placement")
     parser.add_argument("--warm-up-max", type=int, default=1000,
                         help="run counts up to this once untimed first (warm persistent cache)")
+    parser.add_argument("--page-cache", choices=("warm", "cold", "both"), default="warm",
+                        help="bench files read into the page cache before each timed run (warm), dropped from it "
+                             "(cold: Linux, root), or both in turn")
     parser.add_argument("--workdir", type=Path, default=None, help="keep generated fleets here (default: a temp dir)")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
@@ -126,21 +150,24 @@ def main() -> None:
                 warm = root / f"results_{count}_warm.parquet"
                 subprocess.run(["rm", "-rf", str(warm), str(warm) + ".parts"], check=True)
                 _run_batch(directory, warm, "1", args.chunk)
-            for label, mode in modes.items():
-                runs = []
-                for _ in range(args.repeats):
-                    out = root / f"results_{count}.parquet"
-                    subprocess.run(["rm", "-rf", str(out), str(out) + ".parts"], check=True)
-                    runs.append(_peak_rss_of(directory, out, mode, args.chunk))
-                walls = [r["wall_s"] for r in runs]
-                row = {"count": count, "placement": label, "wall_s": statistics.median(walls), "best_s": min(walls),
-                       "walls_s": walls, "motors_per_s": count / statistics.median(walls),
-                       "best_motors_per_s": count / min(walls),
-                       "peak_rss_mib": max(r["peak_rss_mib"] for r in runs), "generate_s": generated}
-                rows.append(row)
-                print(f"{count:>6} motors, {label:>15}: median {row['wall_s']:6.1f} s ({row['motors_per_s']:7.1f} "
-                      f"motors/s), best {row['best_s']:6.1f} s ({row['best_motors_per_s']:7.1f} motors/s), "
-                      f"peak RSS {row['peak_rss_mib']:5.0f} MiB", flush=True)
+            for cache_state in (("warm", "cold") if args.page_cache == "both" else (args.page_cache,)):
+                for label, mode in modes.items():
+                    runs = []
+                    for _ in range(args.repeats):
+                        out = root / f"results_{count}.parquet"
+                        subprocess.run(["rm", "-rf", str(out), str(out) + ".parts"], check=True)
+                        _set_page_cache(directory, cache_state)
+                        runs.append(_peak_rss_of(directory, out, mode, args.chunk))
+                    walls = [r["wall_s"] for r in runs]
+                    row = {"count": count, "placement": label, "page_cache": cache_state,
+                           "wall_s": statistics.median(walls), "best_s": min(walls), "walls_s": walls,
+                           "motors_per_s": count / statistics.median(walls), "best_motors_per_s": count / min(walls),
+                           "peak_rss_mib": max(r["peak_rss_mib"] for r in runs), "generate_s": generated}
+                    rows.append(row)
+                    print(f"{count:>6} motors, {label:>15}, {cache_state} files: median {row['wall_s']:6.1f} s "
+                          f"({row['motors_per_s']:7.1f} motors/s), best {row['best_s']:6.1f} s "
+                          f"({row['best_motors_per_s']:7.1f} motors/s), peak RSS {row['peak_rss_mib']:5.0f} MiB",
+                          flush=True)
     finally:
         cluster.close()
 
@@ -158,11 +185,12 @@ def main() -> None:
             print(f"100 motors, {label:>20}: {r['wall_s']:6.1f} s", flush=True)
 
     print()
-    print(f"{'motors':>8} {'placement':>16} {'median [s]':>11} {'motors/s':>10} {'best [s]':>9} {'motors/s':>10} "
-          f"{'peak RSS [MiB]':>15}")
+    print(f"{'motors':>8} {'placement':>16} {'files':>6} {'median [s]':>11} {'motors/s':>10} {'best [s]':>9} "
+          f"{'motors/s':>10} {'peak RSS [MiB]':>15}")
     for r in rows:
-        print(f"{r['count']:>8} {r['placement']:>16} {r['wall_s']:>11.1f} {r['motors_per_s']:>10.1f} "
-              f"{r['best_s']:>9.1f} {r['best_motors_per_s']:>10.1f} {r['peak_rss_mib']:>15.0f}")
+        print(f"{r['count']:>8} {r['placement']:>16} {r['page_cache']:>6} {r['wall_s']:>11.1f} "
+              f"{r['motors_per_s']:>10.1f} {r['best_s']:>9.1f} {r['best_motors_per_s']:>10.1f} "
+              f"{r['peak_rss_mib']:>15.0f}")
     print()
     for r in cache_rows:
         print(f"  100 motors, {r['run']:>20}: {r['wall_s']:.1f} s")
@@ -175,7 +203,8 @@ def main() -> None:
         "note": ("fresh `drivecal batch` process per run: times include start-up and file reading (not the dask "
                  f"cluster's start: it runs throughout); counts up to {args.warm_up_max} ran once untimed first, "
                  "so the compiled fit came from the persistent cache (compile_cache: the same batch from an "
-                 "empty cache); wall_s is the median of the repeats, best_s the fastest"),
+                 "empty cache); wall_s is the median of the repeats, best_s the fastest; page_cache: the bench "
+                 "files were read into the page cache before each run (warm) or dropped from it (cold)"),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(payload, indent=2) + "\n")
