@@ -13,7 +13,8 @@ file each, 2 % manufacturing spread, 20 mA noise, measured speed), runs
 It records wall time, motors/s and the peak resident memory of the largest
 process (chunking must keep it flat as the count grows); each is run
 ``--repeats`` times and the median and best are reported, since this
-machine's speed drifts by tens of percent from one minute to the next. Then
+machine's speed drifts by tens of percent from one minute to the next (a
+pure-Python CPU probe, timed before and after, records how fast it ran). Then
 it runs the same 100-motor batch twice with an empty persistent compilation
 cache to show what the cache saves on the second invocation.
 
@@ -52,6 +53,20 @@ def _generate(root: Path, count: int) -> Path:
     if not directory.exists():
         fleet.synthetic_fleet(directory, count, seed=count)
     return directory
+
+
+def _cpu_probe() -> float:
+    """Seconds for a fixed pure-Python loop (best of three): how fast this machine runs right now.
+
+    Its speed drifts by tens of percent over a day; the probe, taken before and after the runs, lets
+    figures of different days be compared.
+    """
+    best = float("inf")
+    for _ in range(3):
+        start = time.perf_counter()
+        sum(range(30_000_000))
+        best = min(best, time.perf_counter() - start)
+    return best
 
 
 def _set_page_cache(directory: Path, state: str) -> None:
@@ -131,6 +146,7 @@ def main() -> None:
 
     import drivecal
 
+    probe_before = _cpu_probe()
     root = args.workdir or Path(tempfile.mkdtemp(prefix="drivecal-fleet-bench-"))
     root.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -184,7 +200,9 @@ def main() -> None:
             cache_rows.append({"run": label, "wall_s": r["wall_s"]})
             print(f"100 motors, {label:>20}: {r['wall_s']:6.1f} s", flush=True)
 
+    probe_after = _cpu_probe()
     print()
+    print(f"CPU probe (sum(range(3e7)), best of 3): {probe_before:.2f} s before the runs, {probe_after:.2f} s after")
     print(f"{'motors':>8} {'placement':>16} {'files':>6} {'median [s]':>11} {'motors/s':>10} {'best [s]':>9} "
           f"{'motors/s':>10} {'peak RSS [MiB]':>15}")
     for r in rows:
@@ -195,7 +213,8 @@ def main() -> None:
     for r in cache_rows:
         print(f"  100 motors, {r['run']:>20}: {r['wall_s']:.1f} s")
     payload = {
-        "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "drivecal": drivecal.__version__},
+        "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "drivecal": drivecal.__version__,
+                    "cpu_probe_s": {"before": probe_before, "after": probe_after}},
         "chunk": args.chunk,
         "runs": rows,
         "compile_cache": cache_rows,
