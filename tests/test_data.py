@@ -64,6 +64,22 @@ def test_segment_not_at_rest_starts_from_its_first_sample():
     assert dc.bench_from_frame(frame, "ok.csv").segments[0].at_rest
 
 
+def test_at_rest_noise_comes_from_the_start_of_the_segment():
+    """The noise level the at-rest check compares the first sample with is that of the segment's start
+    (data.AT_REST_NOISE_SAMPLES samples), not of what the segment does later."""
+    from drivecal.data import AT_REST_NOISE_SAMPLES
+
+    rng = np.random.default_rng(3)
+    n = 4 * AT_REST_NOISE_SAMPLES
+    noise = np.where(np.arange(n) < AT_REST_NOISE_SAMPLES, 0.01, 1.0) * rng.normal(size=n)
+    frame = pd.DataFrame({"segment": "d", "locked": 1, "t": np.arange(n) / 20e3, "v_d": 0.0, "v_q": 0.0,
+                          "i_d": noise, "i_q": 0.0})
+    frame.loc[0, "i_d"] = 0.2  # 20 noise levels of the start, 0.2 of the later samples
+    assert not dc.bench_from_frame(frame, "offset.csv").segments[0].at_rest
+    frame.loc[0, "i_d"] = 0.02
+    assert dc.bench_from_frame(frame, "quiet.csv").segments[0].at_rest
+
+
 def run_cli(args, capsys):
     with pytest.raises(SystemExit) as info:
         main([str(a) for a in args])

@@ -1,6 +1,7 @@
 """Fleet calibration: every motor off the line, one results table.
 
-One bench file per motor. A chunk's files are read and checked together
+One bench file per motor. A chunk's files are requested from the operating
+system at once (``_prefetch``), then read and checked together
 (``data.benches_from_frames``), grouped by plan shape (segment lengths, rotor
 conditions, speed input) and fitted together: one ``jit(vmap(...))`` call per
 group and chunk, each motor with its own applied voltages and measured speed.
