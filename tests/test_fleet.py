@@ -129,6 +129,9 @@ def test_dask_cluster_and_local_processes_give_the_same_table(tmp_path):
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         remote = fleet.run_batch([tmp_path / "in"], tmp_path / "dask.parquet", MOTOR, chunk=8,
                                  scheduler=cluster.scheduler_address)
+        with cluster.get_client() as client:  # the workers that ran chunks were tuned for batches
+            tuned = client.run(lambda: __import__("drivecal.fleet", fromlist=["_tuned"])._tuned)
+        assert any(tuned.values())
     helped = fleet.run_batch([tmp_path / "in"], tmp_path / "two.parquet", MOTOR, chunk=8, workers=2)
     assert local.total == remote.total == helped.total == 24
     a = pd.read_parquet(tmp_path / "local.parquet")

@@ -25,6 +25,7 @@ import glob
 import math
 import os
 import shutil
+import sys
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
@@ -56,17 +57,37 @@ STATUS_INVALID = "invalid file"
 # --------------------------------------------------------------------------- the process
 
 
+_tuned = False
+
+
 def tune_for_batch() -> None:
     """Tune this process for a long batch; call it once the modules are imported, before JAX starts.
 
     - The objects loaded so far (JAX, drivecal: millions) leave the garbage collector's view
       (``gc.freeze``): its full collections walked them all, ~3 % of a batch's CPU.
     - Freed memory is reused, not returned to the system (:func:`_keep_freed_memory`).
+
+    Once per process; later calls do nothing.
     """
     import gc
 
+    global _tuned
+    if _tuned:
+        return
+    _tuned = True
     gc.freeze()
     _keep_freed_memory()
+
+
+def _in_dask_worker() -> bool:
+    """Whether this code runs as a task of a dask worker (a process that only runs batches)."""
+    if "distributed" not in sys.modules:  # not imported: certainly not a worker (and importing it costs)
+        return False
+    try:
+        sys.modules["distributed"].get_worker()
+    except (AttributeError, ValueError):
+        return False
+    return True
 
 
 def _keep_freed_memory() -> bool:
@@ -302,6 +323,10 @@ def calibrate_files(
     """
     from . import __version__
 
+    if not _tuned and _in_dask_worker():
+        # A dask worker runs batches only: tuned as local helpers are, on its first chunk (10 000 motors
+        # on a 2-worker LocalCluster: 14.0 s untuned, 10.9 s tuned; medians of 3, interleaved).
+        tune_for_batch()
     loaded = _load([str(p) for p in paths], motor_file)
     failed: list[dict] = []
     fitted: list[pd.DataFrame] = []
