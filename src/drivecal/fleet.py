@@ -168,7 +168,8 @@ class _Loaded:
 def _load(paths: Sequence[str], motor_file: MotorFile) -> list[_Loaded]:
     """Read and check a chunk's bench files; one entry per path, in order, failures with their reason.
 
-    Files laid out alike are checked together (``data.benches_from_frames``).
+    All of them are asked for first (:func:`_prefetch`); files laid out alike are checked together
+    (``data.benches_from_frames``).
     """
     _prefetch(paths)
     read: list[tuple[str, str, str, Any]] = []  # path, serial, sha256, columns or the reason they are missing
@@ -633,7 +634,7 @@ def _worker_started() -> None:
         ctypes.CDLL(None).prctl(pr_set_pdeathsig, signal.SIGKILL)
     except (OSError, AttributeError):  # not Linux
         pass
-    tune_for_batch()
+    tune_for_batch()  # a forked helper inherits this process's tuning (frozen objects, malloc settings): no-op
 
 
 def _on_dask(chunks: list[list[str]], calibrate: Callable, scheduler: str) -> Iterable[tuple[int, pd.DataFrame]]:
