@@ -119,6 +119,37 @@ def test_killed_run_resumes_without_losing_or_repeating_a_motor(tmp_path):
     assert (a["status"] == b["status"]).all()
 
 
+_WHERE_HELPERS_RUN = """
+import json, os, time
+from drivecal import fleet
+
+def where(chunk):
+    time.sleep(0.2)  # long enough that both helpers get chunks
+    return os.getpid(), sorted(os.sched_getaffinity(0))
+
+rows = dict(fleet._on_local_processes([[k] for k in range(8)], where, workers=2))
+print(json.dumps({"chunks": sorted(rows), "parent": os.getpid(), "helpers": list(rows.values())}))
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs a system that pins processes, and two cores")
+def test_local_helpers_each_run_on_a_core_of_their_own():
+    """Two helpers, forked from a fresh process: each pinned to one core, not the same one; the parent computes nothing."""
+    import json
+
+    done = subprocess.run([sys.executable, "-c", _WHERE_HELPERS_RUN], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    seen = json.loads(done.stdout.strip().splitlines()[-1])
+    assert seen["chunks"] == list(range(8))
+    cores_of = {}
+    for pid, cores in seen["helpers"]:
+        assert cores_of.setdefault(pid, cores) == cores  # a helper stays where it was pinned
+    assert seen["parent"] not in cores_of and len(cores_of) == 2
+    first, second = cores_of.values()
+    assert len(first) == len(second) == 1 and first != second
+
+
 @pytest.mark.slow
 def test_dask_cluster_and_local_processes_give_the_same_table(tmp_path):
     """A dask LocalCluster (--scheduler), and this process with a spawned helper (JAX runs here already)."""

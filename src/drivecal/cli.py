@@ -574,8 +574,8 @@ EXIT_COMPLETED_WITH_FAILURES = 1
 @click.option("--chunk", type=click.IntRange(min=1), default=256, show_default=True,
               help="Motors per compiled call and per saved part of the table.")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
-              help="Local processes, this one included (default: this machine's cores, at most one per chunk; "
-                   "1: everything in this process).")
+              help="Local helper processes, one per core (default: this machine's cores, at most one per "
+                   "chunk; 1: everything in this process).")
 @click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Send chunks to a running dask.distributed scheduler, e.g. tcp://10.0.0.5:8786.")
 @click.option("--resume", is_flag=True, help="Continue an interrupted run of the same --out: skip motors already done.")

@@ -475,8 +475,9 @@ def run_batch(
         out: results table (.parquet).
         motor_file: nominal motor (prior) and the parameters to estimate.
         chunk: motors per compiled call and per saved part.
-        workers: local processes, this one included (default: the machine's
-            cores, at most one per chunk); 1 runs everything in this process.
+        workers: local helper processes, each pinned to a core of its own when
+            there are enough (default: this process's cores, at most one per
+            chunk); 1 runs everything in this process.
         scheduler: address of a running dask scheduler (``tcp://host:8786``);
             chunks go to its workers instead.
         resume: keep the rows of an earlier, interrupted run of the same
@@ -557,14 +558,14 @@ def _run_chunks(
     workers: int | None,
     scheduler: str | None,
 ) -> Iterable[tuple[int, pd.DataFrame]]:
-    """Yield ``(chunk index, rows)`` as chunks finish: in this process, in it and local helpers, or on dask workers."""
+    """Yield ``(chunk index, rows)`` as chunks finish: in this process, in local helpers, or on dask workers."""
     if not chunks:
         return
     calibrate = functools.partial(calibrate_files, motor_file=motor_file, chunk=chunk, measured_speed=measured_speed)
     if scheduler is not None:
         yield from _on_dask(chunks, calibrate, scheduler)
         return
-    workers = min(workers or os.cpu_count() or 1, len(chunks))
+    workers = min(workers or _usable_cores(), len(chunks))
     if workers <= 1:
         for k, paths in enumerate(chunks):
             yield k, calibrate(paths)
@@ -573,11 +574,13 @@ def _run_chunks(
 
 
 def _on_local_processes(chunks: list[list[str]], calibrate: Callable, workers: int) -> Iterable[tuple[int, pd.DataFrame]]:
-    """This process and ``workers - 1`` more take chunks from one queue, each the next as it finishes.
+    """``workers`` helper processes take chunks from one queue, each the next as it finishes; this one saves.
 
     The helpers are forked from this process while JAX has not started here (a fork then copies the
     imported modules, not threads), else spawned; each loads the compiled fit from the persistent cache
-    and keeps it for its next chunks. They die with this process (Linux), so a killed run leaves none.
+    and keeps it for its next chunks. When there are no more helpers than cores, each is pinned to a
+    core of its own (:func:`_worker_started`). They die with this process (Linux), so a killed run
+    leaves none. This process only hands out chunks and saves their rows: JAX never starts in it.
     """
     import multiprocessing
     import queue
@@ -597,7 +600,10 @@ def _on_local_processes(chunks: list[list[str]], calibrate: Callable, workers: i
             return None if stop.is_set() else next(todo, None)
 
     context = multiprocessing.get_context("spawn" if backends_are_initialized() else "fork")
-    with ProcessPoolExecutor(workers - 1, mp_context=context, initializer=_worker_started) as pool:
+    cores = _cores_to_pin(workers)
+    started = context.Value("i", 0)  # helpers started so far: the next one takes cores[started]
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_started,
+                             initargs=(cores, started)) as pool:
 
         def feed(_done=None) -> None:
             """Hand a helper its next chunk (called again as each of its chunks finishes)."""
@@ -606,29 +612,47 @@ def _on_local_processes(chunks: list[list[str]], calibrate: Callable, workers: i
                 pool.submit(calibrate, item[1]).add_done_callback(lambda f, k=item[0]: (finished.put((k, f)), feed()))
 
         try:
-            for _ in range(workers - 1):
+            for _ in range(workers):
                 feed()
-            done = 0
-            while (item := take()) is not None:
-                yield item[0], calibrate(item[1])  # this process's share, while the helpers work through theirs
-                done += 1
-                while not finished.empty():
-                    k, future = finished.get()
-                    done += 1
-                    yield k, future.result()
-            while done < len(chunks):
+            for _ in chunks:
                 k, future = finished.get()
-                done += 1
                 yield k, future.result()
         finally:
             stop.set()  # on an error or interrupt, no helper starts another chunk
 
 
-def _worker_started() -> None:
-    """A local worker process: die with the batch (Linux), and tuned as the batch is."""
+def _usable_cores() -> int:
+    """Cores this process may run on (its affinity, where the system tells it), at least 1."""
+    try:
+        return len(os.sched_getaffinity(0)) or 1
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def _cores_to_pin(workers: int) -> tuple[int, ...]:
+    """The cores local helpers are pinned to, one each; none when there are more helpers than cores.
+
+    A helper alone on its core runs a chunk ~13 % faster than two left to the scheduler (10 000 motors
+    on this 2-core machine, median ms a motor: 1.36 pinned, 1.56 not): XLA then sizes its thread pool
+    for one core, so its threads no longer wait on each other across cores, and the caches stay warm.
+    """
+    try:
+        cores = sorted(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux: no pinning
+        return ()
+    return tuple(cores[:workers]) if workers <= len(cores) else ()
+
+
+def _worker_started(cores: tuple[int, ...] = (), started=None) -> None:
+    """A local helper process: pinned to its core (before JAX starts its threads, which inherit it),
+    dies with the batch (Linux), tuned as the batch is."""
     import ctypes
     import signal
 
+    if cores and started is not None:
+        with started.get_lock():
+            index, started.value = started.value, started.value + 1
+        os.sched_setaffinity(0, {cores[index % len(cores)]})
     try:
         pr_set_pdeathsig = 1
         ctypes.CDLL(None).prctl(pr_set_pdeathsig, signal.SIGKILL)
