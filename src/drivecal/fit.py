@@ -70,16 +70,6 @@ class FitOptions:
             (the estimate lands ~1e-4 of step_se from the optimum; sigma_hat and
             the covariance are those of the accepted point, step_se SE away).
             0 turns both off.
-        shared_jacobian_steps: batches solved in tiles (``SOLVE_TILE``) from a
-            start found in the data only: Gauss-Newton steps taken from that
-            start before LM, every fit of a tile using the Jacobian of the
-            tile's first fit at its start. A step costs each fit one rollout of
-            its model instead of a Jacobian sweep (the rollout and one tangent
-            per parameter), and two take a fleet's starts from ~100 to ~0.3
-            standard errors from their optima (median; at most ~8), so LM then
-            stops after two sweeps instead of three. A fit whose residual the
-            first step does not reduce keeps its data start. 0 turns them off;
-            the estimates agree either way to ~1e-6 SE.
     """
 
     rtol: float = 1e-5
@@ -88,7 +78,6 @@ class FitOptions:
     max_steps: int = 200
     first_pass_steps: int | str | None = "auto"
     start: str = "data"
-    shared_jacobian_steps: int = 2
 
     def __post_init__(self):
         if self.start not in ("data", "prior"):
@@ -331,37 +320,9 @@ LINEARISED_TANGENTS_MAX_BATCH = 2
 SOLVE_TILE = 32
 
 
-def _shared_jacobian_steps(currents, z0, prior, experiment, exp_axis, names, steps: int):
-    """``FitOptions.shared_jacobian_steps`` for one tile: starts (T, n) in search units, moved.
-
-    ``currents`` (T, M, 2) A; ``experiment`` one per fit (``exp_axis`` 0) or shared (None).
-    """
-    def flat_residual(cur, exp):
-        parts = _residual_fn(prior, exp, names, cur)
-        return lambda z: jnp.concatenate([jnp.ravel(p) for p in parts(z, None)])
-
-    first = jax.tree_util.tree_map(lambda a: a[0], experiment) if exp_axis == 0 else experiment
-    jac = jax.jacfwd(flat_residual(currents[0], first))(z0[0])  # (m, n), one sweep for the whole tile
-    gram = jac.T @ jac
-    residuals = jax.vmap(lambda cur, z, exp: flat_residual(cur, exp)(z), in_axes=(0, 0, exp_axis))
-    z, keep = z0, jnp.ones(z0.shape[0], bool)
-    for k in range(steps):  # static
-        r = residuals(currents, z, experiment)  # (T, m)
-        rss = jnp.sum(r * r, axis=1)
-        if k == 0:
-            start_rss = rss
-        elif k == 1:
-            # A fit the first step did not improve (a motor unlike the tile's first) keeps its data start.
-            keep = rss < start_rss
-        z = z - jnp.linalg.solve(gram, jac.T @ r.T).T
-    keep = keep & jnp.all(jnp.isfinite(z), axis=1)
-    return jnp.where(keep[:, None], z, z0)
-
-
 @functools.partial(jax.jit, static_argnames=("names", "fit_names", "options", "record"))
 def _solve_compiled(currents, start, prior, experiment, names, fit_names, options, record=False) -> _Solved:
-    from_data = start is None  # static: the start comes from the data, computed in the same compiled call
-    if from_data:
+    if start is None:  # static: the start comes from the data, computed in the same compiled call
         start = start_from_data(experiment, currents, prior, names)
     z0 = to_search(prior, fit_names, start[:, [names.index(n) for n in fit_names]], jnp)
     per_dataset = experiment.voltages.ndim == 3  # static: shapes are known at trace time
@@ -369,18 +330,12 @@ def _solve_compiled(currents, start, prior, experiment, names, fit_names, option
     if batch > SOLVE_TILE and batch % SOLVE_TILE == 0:
         # Tile by tile, each tile's LM loop vmapped: its working set (Jacobians, states) stays in cache
         # and a tile stops when its own fits have (~15 % faster a motor in a fleet's batch of 256).
-        exp_axis = 0 if per_dataset else None
-
         def tile(args):
             cur, z, exp = args if per_dataset else (*args, experiment)
-            if from_data and options.shared_jacobian_steps > 0:
-                z = _shared_jacobian_steps(cur, z, prior, exp, exp_axis, fit_names, options.shared_jacobian_steps)
-            return jax.vmap(_solve_one, in_axes=(0, 0, None, exp_axis, None, None, None))(
-                cur, z, prior, exp, fit_names, options, record)
+            return _solve_one(cur, z, prior, exp, fit_names, options, record)
 
-        tiles = jax.tree_util.tree_map(lambda a: a.reshape((batch // SOLVE_TILE, SOLVE_TILE) + a.shape[1:]),
-                                       (currents, z0, experiment) if per_dataset else (currents, z0))
-        solved = jax.tree_util.tree_map(lambda a: a.reshape((batch,) + a.shape[2:]), jax.lax.map(tile, tiles))
+        solved = jax.lax.map(tile, (currents, z0, experiment) if per_dataset else (currents, z0),
+                             batch_size=SOLVE_TILE)
     else:
         solved = jax.vmap(_solve_one, in_axes=(0, 0, None, 0 if per_dataset else None, None, None, None))(
             currents, z0, prior, experiment, fit_names, options, record
