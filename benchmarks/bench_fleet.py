@@ -5,7 +5,8 @@ file each, 2 % manufacturing spread, 20 mA noise, measured speed), runs
 `drivecal batch DIR --out ... --json` as a fresh process in three ways:
 
 - `--workers 1`: everything in that process;
-- `--workers 2`: that process and one helper forked from it (this machine's 2 cores);
+- `--workers 2`: two helpers forked from that process, each pinned to one of this
+  machine's 2 cores (that process hands out the chunks and saves their rows);
 - `--scheduler ADDRESS`: chunks sent to a 2-worker dask LocalCluster that the
   benchmark starts once (as a production cluster runs between batches: its
   workers compile on their first chunk and keep the fit).
