@@ -8,8 +8,9 @@ file each, 2 % manufacturing spread, 20 mA noise, measured speed), runs
 - `--workers 2`: two helpers forked from that process, each pinned to one of this
   machine's 2 cores (that process hands out the chunks and saves their rows);
 - `--scheduler ADDRESS`: chunks sent to a 2-worker dask LocalCluster that the
-  benchmark starts once (as a production cluster runs between batches: its
-  workers compile on their first chunk and keep the fit).
+  benchmark starts once, after the local runs (an idle cluster takes ~12 % of
+  a core here), and keeps for every count (as a production cluster runs
+  between batches: its workers compile on their first chunk and keep the fit).
 
 It records wall time, motors/s and the peak resident memory of the largest
 process (chunking must keep it flat as the count grows); each is run
@@ -151,40 +152,48 @@ def main() -> None:
     root = args.workdir or Path(tempfile.mkdtemp(prefix="drivecal-fleet-bench-"))
     root.mkdir(parents=True, exist_ok=True)
     rows = []
+    directories = {}
+    for count in args.counts:
+        t = time.perf_counter()
+        directories[count] = _generate(root, count), time.perf_counter() - t
+        if count <= args.warm_up_max:
+            # One untimed invocation first, so the timed ones find the compiled fit for this count's
+            # batch shape in the persistent cache, as every batch after the first one on a line does
+            # (chunks are of equal size: 10 000 motors use the shape of 1 000, 256). The cold start
+            # is measured below.
+            warm = root / f"results_{count}_warm.parquet"
+            subprocess.run(["rm", "-rf", str(warm), str(warm) + ".parts"], check=True)
+            _run_batch(directories[count][0], warm, "1", args.chunk)
+
+    def measure(label: str, mode: str) -> None:
+        for count in args.counts:
+            directory, generated = directories[count]
+            for cache_state in (("warm", "cold") if args.page_cache == "both" else (args.page_cache,)):
+                runs = []
+                for _ in range(args.repeats):
+                    out = root / f"results_{count}.parquet"
+                    subprocess.run(["rm", "-rf", str(out), str(out) + ".parts"], check=True)
+                    _set_page_cache(directory, cache_state)
+                    runs.append(_peak_rss_of(directory, out, mode, args.chunk))
+                walls = [r["wall_s"] for r in runs]
+                row = {"count": count, "placement": label, "page_cache": cache_state,
+                       "wall_s": statistics.median(walls), "best_s": min(walls), "walls_s": walls,
+                       "motors_per_s": count / statistics.median(walls), "best_motors_per_s": count / min(walls),
+                       "peak_rss_mib": max(r["peak_rss_mib"] for r in runs), "generate_s": generated}
+                rows.append(row)
+                print(f"{count:>6} motors, {label:>15}, {cache_state} files: median {row['wall_s']:6.1f} s "
+                      f"({row['motors_per_s']:7.1f} motors/s), best {row['best_s']:6.1f} s "
+                      f"({row['best_motors_per_s']:7.1f} motors/s), peak RSS {row['peak_rss_mib']:5.0f} MiB",
+                      flush=True)
+
+    # The local placements first, with no cluster up: an idle LocalCluster (scheduler, nannies,
+    # workers) takes ~12 % of a core here, which would be charged to the local runs.
+    measure("1 process", "1")
+    measure("2 processes", "2")
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
                            silence_logs=40)
-    modes = {"1 process": "1", "2 processes": "2", "dask, 2 workers": cluster.scheduler_address}
     try:
-        for count in args.counts:
-            t = time.perf_counter()
-            directory = _generate(root, count)
-            generated = time.perf_counter() - t
-            if count <= args.warm_up_max:
-                # One untimed invocation first, so the timed ones find the compiled fit for this count's
-                # batch shape in the persistent cache, as every batch after the first one on a line does
-                # (chunks are of equal size: 10 000 motors use the shape of 1 000, 256). The cold start
-                # is measured below.
-                warm = root / f"results_{count}_warm.parquet"
-                subprocess.run(["rm", "-rf", str(warm), str(warm) + ".parts"], check=True)
-                _run_batch(directory, warm, "1", args.chunk)
-            for cache_state in (("warm", "cold") if args.page_cache == "both" else (args.page_cache,)):
-                for label, mode in modes.items():
-                    runs = []
-                    for _ in range(args.repeats):
-                        out = root / f"results_{count}.parquet"
-                        subprocess.run(["rm", "-rf", str(out), str(out) + ".parts"], check=True)
-                        _set_page_cache(directory, cache_state)
-                        runs.append(_peak_rss_of(directory, out, mode, args.chunk))
-                    walls = [r["wall_s"] for r in runs]
-                    row = {"count": count, "placement": label, "page_cache": cache_state,
-                           "wall_s": statistics.median(walls), "best_s": min(walls), "walls_s": walls,
-                           "motors_per_s": count / statistics.median(walls), "best_motors_per_s": count / min(walls),
-                           "peak_rss_mib": max(r["peak_rss_mib"] for r in runs), "generate_s": generated}
-                    rows.append(row)
-                    print(f"{count:>6} motors, {label:>15}, {cache_state} files: median {row['wall_s']:6.1f} s "
-                          f"({row['motors_per_s']:7.1f} motors/s), best {row['best_s']:6.1f} s "
-                          f"({row['best_motors_per_s']:7.1f} motors/s), peak RSS {row['peak_rss_mib']:5.0f} MiB",
-                          flush=True)
+        measure("dask, 2 workers", cluster.scheduler_address)
     finally:
         cluster.close()
 
@@ -221,7 +230,7 @@ def main() -> None:
         "compile_cache": cache_rows,
         "repeats": args.repeats,
         "note": ("fresh `drivecal batch` process per run: times include start-up and file reading (not the dask "
-                 f"cluster's start: it runs throughout); counts up to {args.warm_up_max} ran once untimed first, "
+                 f"cluster's start: it is up for the dask runs only, all counts); counts up to {args.warm_up_max} ran once untimed first, "
                  "so the compiled fit came from the persistent cache (compile_cache: the same batch from an "
                  "empty cache); wall_s is the median of the repeats, best_s the fastest; page_cache: the bench "
                  "files were read into the page cache before each run (warm) or dropped from it (cold)"),
