@@ -73,13 +73,14 @@ class FitOptions:
         shared_jacobian_steps: batches solved in tiles (``SOLVE_TILE``) from a
             start found in the data only: Gauss-Newton steps taken from that
             start before LM, every fit of a tile using the Jacobian of the
-            tile's first fit at its start. A step costs each fit one rollout of
-            its model instead of a Jacobian sweep (the rollout and one tangent
-            per parameter), and two take a fleet's starts from ~100 to ~0.3
-            standard errors from their optima (median; at most ~8), so LM then
-            stops after two sweeps instead of three. A fit whose residual the
-            first step does not reduce keeps its data start. 0 turns them off;
-            the estimates agree either way to ~1e-6 SE.
+            tile's first fit at that fit's current point (forward differences).
+            A step costs each fit one rollout of its model instead of a
+            Jacobian sweep (the rollout and one tangent per parameter), and two
+            take a fleet's starts from ~100 to ~0.3 standard errors from their
+            optima (median over 256 motors, in the covariance's metric; at most
+            ~8), so LM then stops after two sweeps instead of three. A fit whose
+            residual the first step does not reduce keeps its data start. 0
+            turns them off; the estimates agree either way to ~1e-6 SE.
     """
 
     rtol: float = 1e-5
