@@ -152,7 +152,7 @@ def test_local_helpers_each_run_on_a_core_of_their_own():
 
 @pytest.mark.slow
 def test_dask_cluster_and_local_processes_give_the_same_table(tmp_path):
-    """A dask LocalCluster (--scheduler), and this process with a spawned helper (JAX runs here already)."""
+    """A dask LocalCluster (--scheduler), and two local helpers, spawned (JAX runs here already)."""
     from distributed import LocalCluster
 
     fleet.synthetic_fleet(tmp_path / "in", 24, seed=4)

@@ -119,7 +119,7 @@ def test_shared_jacobian_steps_save_a_sweep_not_accuracy(clean_default, tiled_ba
     assert np.median(shared.iterations) < np.median(plain.iterations)
     np.testing.assert_array_equal(shared.initial, plain.initial)  # the reported start is the data's
     # Both end within step_se = 0.01 SE of the optimum and then take the final Gauss-Newton step
-    # (~1e-4 of that from it): a thousandth of an SE apart at most (measured: ~2e-6); the
+    # (~1e-4 of that from it): a thousandth of an SE apart at most (measured on a fleet: ~1e-6); the
     # covariances are those of points ~0.01 SE apart (measured: ~1e-6 relative).
     assert np.max(np.abs(shared.estimate - plain.estimate) / plain.se) < 1e-3
     np.testing.assert_allclose(shared.se, plain.se, rtol=1e-5)
