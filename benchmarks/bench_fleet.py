@@ -230,7 +230,8 @@ def main() -> None:
         "compile_cache": cache_rows,
         "repeats": args.repeats,
         "note": ("fresh `drivecal batch` process per run: times include start-up and file reading (not the dask "
-                 f"cluster's start: it is up for the dask runs only, all counts); counts up to {args.warm_up_max} ran once untimed first, "
+                 "cluster's start: it is up for the dask runs only, all counts); counts up to "
+                 f"{args.warm_up_max} ran once untimed first, "
                  "so the compiled fit came from the persistent cache (compile_cache: the same batch from an "
                  "empty cache); wall_s is the median of the repeats, best_s the fastest; page_cache: the bench "
                  "files were read into the page cache before each run (warm) or dropped from it (cold)"),

@@ -565,7 +565,7 @@ def _run_chunks(
     if scheduler is not None:
         yield from _on_dask(chunks, calibrate, scheduler)
         return
-    workers = min(workers or _usable_cores(), len(chunks))
+    workers = min(workers or len(_allowed_cores()) or os.cpu_count() or 1, len(chunks))
     if workers <= 1:
         for k, paths in enumerate(chunks):
             yield k, calibrate(paths)
@@ -621,12 +621,12 @@ def _on_local_processes(chunks: list[list[str]], calibrate: Callable, workers: i
             stop.set()  # on an error or interrupt, no helper starts another chunk
 
 
-def _usable_cores() -> int:
-    """Cores this process may run on (its affinity, where the system tells it), at least 1."""
+def _allowed_cores() -> list[int]:
+    """The cores this process may run on (its affinity); empty where the system does not say (not Linux)."""
     try:
-        return len(os.sched_getaffinity(0)) or 1
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
+        return sorted(os.sched_getaffinity(0))
+    except AttributeError:
+        return []
 
 
 def _cores_to_pin(workers: int) -> tuple[int, ...]:
@@ -637,10 +637,7 @@ def _cores_to_pin(workers: int) -> tuple[int, ...]:
     use, so a pinned helper's threads no longer wait on each other across cores (pinning only those
     threads gave 1.44 ms), and the helper keeps its core's caches.
     """
-    try:
-        cores = sorted(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux: no pinning
-        return ()
+    cores = _allowed_cores()  # none known (not Linux): no pinning
     return tuple(cores[:workers]) if workers <= len(cores) else ()
 
 
