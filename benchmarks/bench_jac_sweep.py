@@ -27,8 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import drivecal as dc
-from drivecal import forward
-from drivecal.motor import from_search
+from drivecal.model import _rollout as forward
+from drivecal.physics import from_search
 
 BASELINE = "af609d1"
 NAMES = dc.ESTIMATED

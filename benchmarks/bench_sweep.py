@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import drivecal as dc
-from drivecal import forward
+from drivecal.model import _rollout as forward
 
 RESULTS = Path(__file__).parent / "results" / "bench_sweep.json"
 NAMES = dc.ESTIMATED

@@ -28,7 +28,8 @@ from rich.console import Console
 from rich.table import Table
 
 import drivecal as dc
-from drivecal import corpus
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from helpers import corpus  # noqa: E402
 
 CORPUS = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "motors.csv"
 RESULTS = Path(__file__).parent / "results" / "validate_corpus.json"

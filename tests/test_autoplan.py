@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import drivecal as dc
-from drivecal import autoplan, corpus
+from drivecal import design as autoplan
+from helpers import corpus
 from drivecal.cli import main
 
 CORPUS = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "motors.csv"
@@ -41,7 +42,7 @@ def test_default_motor_plan_is_feasible_identifiable_and_within_limits(default_d
     # sample rate: >= SAMPLES_PER_TIME_CONSTANT samples in the fastest time constant
     assert plan.sample_rate * float(min(motor.Ld, motor.Lq) / motor.R) >= autoplan.SAMPLES_PER_TIME_CONSTANT
     spin = report.segments[2]
-    assert spin.peak_electrical_step <= autoplan.MAX_ELECTRICAL_STEP
+    assert spin.peak_electrical_step <= autoplan.PLAN_MAX_ELECTRICAL_STEP
     assert all(p.peak_current <= autoplan.CURRENT_MARGIN * 30.0 for p in report.segments)
     no_load = plan.voltage_limit / (float(motor.pole_pairs) * float(motor.lambda_m))
     assert 0 < spin.peak_speed <= autoplan.SPEED_FRACTION * no_load

@@ -222,7 +222,7 @@ def test_bad_motor_file_via_cli(tmp_path, capsys):
 
 @pytest.mark.parametrize("n", [4, 5, 1000, 1001])
 def test_partition_median_is_numpy_median(n):
-    from drivecal.data import _median
+    from drivecal._stats import fast_median as _median
 
     x = np.random.default_rng(n).normal(size=n)
     assert _median(x) == np.median(x)
@@ -254,7 +254,7 @@ def test_columns_and_frame_give_the_same_bench(tmp_path):
 def test_fleet_whiteness_equals_the_single_fit_test():
     """The fleet's batched Ljung-Box p-values are the verdict's, series by series."""
     from drivecal.fleet import residual_diagnostics
-    from drivecal.verdict import WHITENESS_ALPHA, ljung_box
+    from drivecal.diagnose import WHITENESS_ALPHA, ljung_box
 
     rng = np.random.default_rng(3)
     residuals = rng.standard_normal((5, 300, 2))
@@ -271,8 +271,8 @@ def test_fleet_whiteness_equals_the_single_fit_test():
 
 def test_ljung_box_equals_its_formula():
     """Q = N(N+2) sum_k r_k^2 / (N-k), r_k the lag-k autocorrelation, computed plainly."""
-    from drivecal.distributions import chi2_sf
-    from drivecal.verdict import ljung_box
+    from drivecal._stats import chi2_sf
+    from drivecal.diagnose import ljung_box
 
     x = np.random.default_rng(4).standard_normal(257)
     d = x - x.mean()
@@ -336,7 +336,7 @@ def test_stacked_experiment_is_the_stack_of_experiments(delay):
     import jax
 
     from drivecal.data import stacked_experiment
-    from drivecal.forward import stack_experiments
+    from drivecal.model import stack_experiments
 
     frame = small_frame().assign(w_m=lambda f: np.where(f["locked"] == 1, 0.0, np.linspace(0.0, 5.0, len(f))))
     benches = [dc.bench_from_frame(frame, "a"), dc.bench_from_frame(frame.iloc[5:], "b")]  # b starts moving

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import drivecal as dc
-from drivecal.forward import model_experiment, predict_currents
+from drivecal.model import model_experiment, predict_currents
 
 NOISE = 0.02  # A
 EFFECTS = dict(v_dead=0.4, offset_d=0.05, offset_q=-0.03)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import drivecal as dc
-from drivecal import waveforms as wf
+from drivecal.plan import waveforms as wf
 from drivecal.cli import main
 
 from conftest import NOISE, true_vector

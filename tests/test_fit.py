@@ -54,7 +54,7 @@ def test_history_from_the_guess(default_bench, guess, default_fit):
 
 def test_residuals_are_the_model_at_the_estimate_minus_the_data(default_fit, default_bench):
     """What the fleet tests for whiteness: the solver's residuals, equal to a fresh prediction at the estimate."""
-    from drivecal.forward import predicted_currents
+    from drivecal.model import predicted_currents
 
     res = default_fit.residuals
     assert res.shape == (default_bench.num_samples, 2)

@@ -121,7 +121,7 @@ def test_killed_run_resumes_without_losing_or_repeating_a_motor(tmp_path):
 
 _WHERE_HELPERS_RUN = """
 import json, os, time
-from drivecal import fleet
+from drivecal.fleet import _batch as fleet
 
 def where(chunk):
     time.sleep(0.2)  # long enough that both helpers get chunks
@@ -161,7 +161,7 @@ def test_dask_cluster_and_local_processes_give_the_same_table(tmp_path):
         remote = fleet.run_batch([tmp_path / "in"], tmp_path / "dask.parquet", MOTOR, chunk=8,
                                  scheduler=cluster.scheduler_address)
         with cluster.get_client() as client:  # the workers that ran chunks were tuned for batches
-            tuned = client.run(lambda: __import__("drivecal.fleet", fromlist=["_tuned"])._tuned)
+            tuned = client.run(lambda: __import__("drivecal.fleet._batch", fromlist=["_tuned"])._tuned)
         assert any(tuned.values())
     helped = fleet.run_batch([tmp_path / "in"], tmp_path / "two.parquet", MOTOR, chunk=8, workers=2)
     assert local.total == remote.total == helped.total == 24
@@ -225,7 +225,9 @@ def test_a_chunk_asks_for_its_files_before_reading_them(tmp_path, monkeypatch):
     files = [str(p) for p in fleet.discover([tmp_path / "in"])]
     missing = str(tmp_path / "in" / "gone.parquet")
     events = []
-    real_read_table = fleet.read_table
+    from drivecal.fleet import _batch
+
+    real_read_table = _batch.read_table
 
     def advise(fd, offset, length, advice):
         events.append(("advise", os.readlink(f"/proc/self/fd/{fd}") if os.path.exists("/proc/self/fd") else fd,
@@ -236,8 +238,8 @@ def test_a_chunk_asks_for_its_files_before_reading_them(tmp_path, monkeypatch):
         return real_read_table(path, content)
 
     monkeypatch.setattr(os, "posix_fadvise", advise)
-    monkeypatch.setattr(fleet, "read_table", read_table)
-    loaded = fleet._load(files + [missing], MOTOR)
+    monkeypatch.setattr(_batch, "read_table", read_table)
+    loaded = _batch._load(files + [missing], MOTOR)
     advised = [e for e in events if e[0] == "advise"]
     assert all(e[2] == os.POSIX_FADV_WILLNEED for e in advised)
     if os.path.exists("/proc/self/fd"):

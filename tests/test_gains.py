@@ -9,9 +9,9 @@ import pytest
 
 from conftest import NOISE
 from drivecal.cli import main
-from drivecal.gains import design_current_loop, loop_metrics, pi_gains
-from drivecal.record import build_result
-from drivecal.report import write_json
+from drivecal.report import design_current_loop, loop_metrics, pi_gains
+from drivecal.report import build_result
+from drivecal._io import write_json
 
 BW = 1000.0  # Hz
 

@@ -54,7 +54,7 @@ def test_identifiability_report_is_jaxterity_s(truth):
     import contextlib
     import io
 
-    from drivecal.identify import COND_MAX, _jaxterity_report
+    from drivecal.identify import COND_MAX, identifiability_report
 
     with contextlib.redirect_stdout(io.StringIO()):
         from jaxterity.sysid.recipes import identifiability_from_jacobian
@@ -68,7 +68,7 @@ def test_identifiability_report_is_jaxterity_s(truth):
              np.column_stack([base, np.zeros(300)])]  # a dead column
     for jac in jacs:
         names = ("R", "Ld", "Lq", "lambda_m")[: jac.shape[1]]
-        ours = _jaxterity_report(jac, names)
+        ours = identifiability_report(jac, names)
         theirs = identifiability_from_jacobian(jac, names=names, cond_max=COND_MAX)
         assert ours.singular_values == theirs.singular_values and ours.rank == theirs.rank
         assert ours.condition_number == theirs.condition_number and ours.identifiable == theirs.identifiable

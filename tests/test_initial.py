@@ -10,7 +10,7 @@ import pytest
 
 import drivecal as dc
 from conftest import NOISE, true_vector
-from drivecal.initial import equation_error_start
+from drivecal.fitting import equation_error_start
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

@@ -13,8 +13,8 @@ from scipy import special, stats
 
 import drivecal as dc
 from drivecal.cli import main
-from drivecal.forward import stack_experiments
-from drivecal.optimal import load_plan_waveforms, predicted_covariance
+from drivecal.model import stack_experiments
+from drivecal.design import load_plan_waveforms, predicted_covariance
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 NOISE = 0.02  # A
@@ -68,7 +68,7 @@ def test_optimisation_keeps_waveform_kinds_and_the_budget(tmp_path):
         spec = result.waveforms_after[(seg, axis)]
         assert spec["kind"] == "chirp" and spec["sweep"] == "log"
         assert 0 < spec["f_start"] < plan.sample_rate / 2 and 0 < spec["f_stop"] < plan.sample_rate / 2
-    out = dc.config.write_plan(tmp_path / "chirp_opt.toml", result.plan_after,
+    out = dc.write_plan(tmp_path / "chirp_opt.toml", result.plan_after,
                                {k: v for k, v in result.waveforms_after.items() if isinstance(v, dict)})
     reloaded = dc.load_plan(out)
     np.testing.assert_allclose(np.concatenate([s.voltages(20e3) for s in reloaded.segments]),

@@ -11,8 +11,8 @@ import pytest
 import drivecal as dc
 from conftest import NOISE
 from drivecal.cli import main
-from drivecal.record import build_result
-from drivecal.verdict import residual_checks
+from drivecal.report import build_result
+from drivecal.diagnose import residual_checks
 
 TIME_STAMP = re.compile(r'<time id="generated">[^<]*</time>')
 
@@ -83,7 +83,7 @@ def test_understated_noise_and_unmodelled_effects_are_flagged(default_fit, defau
 
 
 def test_poor_design_sensitivity_figure_marks_the_dead_parameters(poor_fit):
-    from drivecal import plots
+    from drivecal.report import plots
 
     fig = plots.identifiability_figure({"locked q-step only": poor_fit.identifiability})
     ax = fig.axes[1]
@@ -134,7 +134,7 @@ def test_report_refuses_bad_input_in_one_line(content, fragment, tmp_path, capsy
 
 def test_fresh_result_and_its_saved_json_render_the_same_page(poor_fit, poor_bench):
     """What the `fit` command will do: build_result -> write_json and write_html_report."""
-    from drivecal.html import render_html
+    from drivecal.report import render_html
 
     doc = build_result(poor_fit, poor_bench, noise_sigma=NOISE)
     page = render_html(doc, generated="T")
@@ -153,7 +153,7 @@ def test_distributions_are_scipy_stats_bit_for_bit():
     """drivecal computes t.ppf and chi2.sf with scipy.special (scipy.stats costs a second to import)."""
     from scipy import stats
 
-    from drivecal.distributions import chi2_sf, t_ppf
+    from drivecal._stats import chi2_sf, t_ppf
 
     df = np.concatenate([np.arange(1, 2000), [2797, 12_345, 10**6]])
     for q in (0.975, 0.5, 0.025):

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 import drivecal as dc
-from drivecal import waveforms
-from drivecal.forward import _rollout, model_experiment, predict_currents, stack_experiments
+from drivecal.plan import waveforms
+from drivecal.model import model_experiment, predict_currents, simulate_states, stack_experiments
 
 FS = 20_000.0
 NAMES = dc.ESTIMATED
@@ -81,7 +81,7 @@ CASES = _cases()
 @functools.partial(jax.jit, static_argnames=("keep",))
 def _states_and_jacobian(theta, motor, experiment, keep):
     def states(th):
-        return _rollout(motor.with_vector(NAMES, th), experiment, keep)
+        return simulate_states(motor.with_vector(NAMES, th), experiment, keep)
 
     return states(theta), jax.jacfwd(states)(theta)
 
@@ -105,7 +105,7 @@ def test_dead_time_stays_on_the_one_scan():
     """The dead-time model couples the currents to the angle: the rollout is the sequential scan."""
     motor = dc.DEFAULT_MOTOR.replace(v_dead=0.3)
     experiment = model_experiment(CASES["one-sample segment"][1], motor, ())
-    rollout = jax.jit(_rollout, static_argnums=2)
+    rollout = jax.jit(simulate_states, static_argnums=2)
     np.testing.assert_array_equal(rollout(motor, experiment, 2),
                                   rollout(motor, dataclasses.replace(experiment, segments=None), 2))
 

@@ -6,8 +6,8 @@ import pytest
 
 import drivecal as dc
 from drivecal.bench import run_held_voltages
-from drivecal.benchblocks import saturating_pmsm_block
-from drivecal.export import pmsm_block
+from helpers.blocks import saturating_pmsm_block
+from drivecal.bench import pmsm_block
 
 #: Locked steps at two current levels per axis (about 5 A and 25 A on d, 3.6 A and 14 A on q).
 LEVELS = dc.Plan((dc.Segment("d 3 V", 0.01, True, v_d=3.0), dc.Segment("d 12 V", 0.01, True, v_d=12.0),

@@ -18,9 +18,9 @@ import pytest
 
 import drivecal as dc
 from conftest import NOISE
-from drivecal.forward import model_experiment, stack_experiments
-from drivecal.initial import equation_error_start
-from drivecal.motor import to_search
+from drivecal.model import model_experiment, stack_experiments
+from drivecal.fitting import equation_error_start
+from drivecal.physics import to_search
 
 fit_module = importlib.import_module("drivecal.fit")
 

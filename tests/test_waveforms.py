@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import drivecal as dc
-from drivecal import waveforms as wf
+from drivecal.plan import waveforms as wf
 
 FS = 20_000.0
 

@@ -1,0 +1,228 @@
+"""The synthetic bench: a plan run on the Jaxonomy engine, the independent truth.
+
+Each segment becomes its own small diagram (a rotor-locked and a free PMSM are
+different blocks in Jaxonomy): a source that outputs the plan's sample k on
+``[t_k, t_k+1)``, a zero-order hold at the sample period, and
+``jaxonomy.library.drives.PMSM``. Jaxonomy's adaptive solver integrates it; the
+currents are read at exactly ``t_k = k / sample_rate``. drivecal's own RK4
+rollout (``forward.py``) is never used here, so comparing the two is a real test.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import logging
+import warnings
+
+import numpy as np
+
+from ..data import BenchData, SegmentData
+from ..errors import PlanError
+from ..model import delayed, sensor_offsets
+from ..physics import dead_time_error
+from ..physics import MotorParams, resistance_at
+from ..plan import Plan, Segment
+
+#: Engine tolerances: tight enough that the bench is exact to ~1e-9 A.
+ENGINE_RTOL = 1e-12
+ENGINE_ATOL = 1e-12
+
+
+def _quiet_jaxonomy() -> None:
+    # jaxonomy logs INFO on every simulate(); a bench run is many of them.
+    from jaxonomy import logging as jx_logging
+
+    jx_logging.set_log_level(jx_logging.WARNING)
+    logging.getLogger("jaxonomy").setLevel(logging.WARNING)
+
+
+def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float,
+                 delay_samples: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Run one segment on the engine; return sample times (s) and states (N, 4).
+
+    The bench effects of ``motor`` act as on a real bench: R at the segment's
+    winding temperature, the inverter's dead-time error fed back from the
+    block's currents and angle, the commands applied ``delay_samples`` late.
+    """
+    warm = motor
+    if segment.temperature is not None:
+        warm = motor.replace(R=float(resistance_at(motor, float(segment.temperature))))
+    dead = None
+    if float(motor.v_dead) != 0.0:
+        dead = (float(motor.pole_pairs), float(motor.v_dead), float(motor.i_dead))
+    volts = np.ascontiguousarray(delayed(segment.voltages(sample_rate), delay_samples), dtype=float)
+    setup = _pmsm_setup(tuple((f.name, float(getattr(warm, f.name))) for f in dataclasses.fields(warm)),
+                        bool(segment.locked), volts.tobytes(), float(sample_rate), dead)
+    return _run_on_engine(setup, sample_rate, label=f"segment '{segment.name}'")
+
+
+@functools.lru_cache(maxsize=8)
+def _pmsm_setup(motor_values: tuple, locked: bool, volts: bytes, sample_rate: float, dead: tuple | None):
+    """The bench diagram of one segment on one motor, built once: the same segment
+    run again (the demo's second design repeats the locked q-step) reuses the
+    diagram and so the engine's compiled kernel; the run itself is repeated.
+
+    ``motor_values``: ``(name, value)`` of every ``MotorParams`` field;
+    ``volts``: the applied ``[v_d, v_q]`` (float64, shape (N, 2)) as bytes;
+    ``dead``: ``(pole_pairs, v_dead, i_dead)`` of the dead-time feedback, or None.
+    """
+    from ._blocks import pmsm_block
+
+    block = pmsm_block(MotorParams(**dict(motor_values)), locked=locked, name="pmsm")
+    error = None
+    if dead is not None:
+        import jax.numpy as jnp
+
+        pole_pairs, v_dead, i_dead = dead
+
+        def error(state):
+            return jnp.stack(dead_time_error(state[0], state[1], pole_pairs * state[3], v_dead, i_dead))
+
+    return _held_voltage_diagram(block, np.frombuffer(volts).reshape(-1, 2), sample_rate, error)
+
+
+def _held_voltage_diagram(block, voltages: np.ndarray, sample_rate: float, voltage_error=None):
+    """(diagram, its context, the block, the number of samples) for ``run_held_voltages``.
+
+    The source outputs row k of ``voltages`` (shape (N, 2)) on ``[t_k, t_k+1)``;
+    a zero-order hold at the sample period feeds the block.
+    """
+    import jax.numpy as jnp
+    from jaxonomy import DiagramBuilder
+    from jaxonomy.library import Adder, FeedthroughBlock, SourceBlock, ZeroOrderHold
+
+    _quiet_jaxonomy()
+    volts = jnp.asarray(voltages)
+    n = volts.shape[0]
+    dt = 1.0 / sample_rate
+
+    def held_sample(time):
+        # The 1e-6 guards against t_k landing a rounding error below k/fs.
+        k = jnp.clip(jnp.floor(time * sample_rate + 1e-6).astype(int), 0, n - 1)
+        return volts[k]
+
+    builder = DiagramBuilder()
+    source = builder.add(SourceBlock(held_sample, name="v_dq_samples"))
+    hold = builder.add(ZeroOrderHold(dt, name="pwm_hold"))
+    pmsm = builder.add(block)
+    builder.connect(source.output_ports[0], hold.input_ports[0])
+    if voltage_error is None:
+        builder.connect(hold.output_ports[0], pmsm.input_ports[0])
+    else:
+        error = builder.add(FeedthroughBlock(voltage_error, name="inverter_error"))
+        applied = builder.add(Adder(2, name="applied_voltage"))
+        builder.connect(pmsm.output_ports[0], error.input_ports[0])
+        builder.connect(hold.output_ports[0], applied.input_ports[0])
+        builder.connect(error.output_ports[0], applied.input_ports[1])
+        builder.connect(applied.output_ports[0], pmsm.input_ports[0])
+    diagram = builder.build()
+    return diagram, diagram.create_context(), pmsm, n
+
+
+def run_held_voltages(block, voltages: np.ndarray, sample_rate: float, *, label: str = "segment",
+                      voltage_error=None):
+    """Drive a PMSM block on the engine with per-sample voltages held between samples.
+
+    Args:
+        block: a PMSM-like block (input port 0: ``[v_d, v_q]``, output port 0: state).
+        voltages: ``[v_d, v_q]`` (V), shape (N, 2); row k acts on ``[t_k, t_k+1)``.
+        sample_rate: samples per second (Hz).
+        label: names the run in the error message.
+        voltage_error: optional ``f(state) -> [e_d, e_q]`` (V) added to the
+            held voltage, fed back from the block's state (an inverter's dead
+            time, for instance); the block's state output does not depend on
+            its input, so the loop is not algebraic.
+
+    Returns:
+        Sample times ``t_k = k / sample_rate`` (s), shape (N,), and the state at
+        each, shape (N, 4) (A, A, rad/s, rad).
+    """
+    setup = _held_voltage_diagram(block, voltages, sample_rate, voltage_error)
+    return _run_on_engine(setup, sample_rate, label=label)
+
+
+def _run_on_engine(setup, sample_rate: float, *, label: str):
+    """``run_held_voltages`` on a built diagram (``_held_voltage_diagram``)."""
+    from jaxonomy import SimulatorOptions, simulate
+
+    _quiet_jaxonomy()
+    diagram, context, pmsm, n = setup
+    dt = 1.0 / sample_rate
+
+    t_samples = np.arange(n) * dt
+    # Time-varying inputs make the solver record several points per sample.
+    buffer_length = 16 * n + 64
+    for _ in range(4):
+        options = SimulatorOptions(rtol=ENGINE_RTOL, atol=ENGINE_ATOL, buffer_length=buffer_length)
+        with warnings.catch_warnings():
+            # A full buffer is detected below (missing sample instants) and retried.
+            warnings.filterwarnings("ignore", message=".*recording buffer.*")
+            result = simulate(
+                diagram, context, (0.0, t_samples[-1]), options=options, recorded_signals={"x": pmsm.output_ports[0]}
+            )
+        t_rec = np.asarray(result.time)
+        x_rec = np.asarray(result.outputs["x"])
+        # Some instants are recorded twice around the hold's update; the state is
+        # continuous there, so take the last record at each sample time.
+        idx = np.searchsorted(t_rec, t_samples + 1e-9 * dt, side="right") - 1
+        found = (idx >= 0) & (np.abs(t_rec[np.clip(idx, 0, None)] - t_samples) <= 1e-9 * dt + 1e-15)
+        if found.all():
+            return t_samples, x_rec[idx]
+        # A full buffer is thinned silently: record again with more room.
+        buffer_length *= 4
+    raise PlanError(f"{label}: the engine did not record every sample instant.")
+
+
+def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
+                 delay_samples: int = 0) -> BenchData:
+    """Noise-free bench data: the plan run on the Jaxonomy engine.
+
+    The bench effects set in ``motor`` are part of the truth: dead time
+    (``v_dead``), sensor offsets (``offset_*``, added to the recorded
+    currents), R at each segment's ``temperature`` (recorded too).
+
+    Args:
+        plan: the experiment (checked for feasibility first).
+        motor: the true machine, with its inverter and sensors.
+        record_speed: also record the mechanical speed ``w_m`` (rad/s) and the
+            electrical angle ``theta_e`` (rad), as an encoder would.
+        delay_samples: the inverter's PWM/computation delay (samples); the
+            file records the commands, as a real inverter log does.
+    """
+    plan.check_feasible()
+    _quiet_jaxonomy()
+    segments = []
+    for seg in plan.segments:
+        t, states = _run_segment(seg, motor, plan.sample_rate, delay_samples)
+        theta_e = float(motor.pole_pairs) * states[:, 3]
+        if any(float(getattr(motor, o)) != 0.0 for o in ("offset_d", "offset_q", "offset_a", "offset_b")):
+            d_offset, q_offset = (np.asarray(o) for o in sensor_offsets(theta_e, motor))
+        else:  # ideal sensors: exactly the zeros sensor_offsets gives, without its dozen eager JAX ops
+            d_offset = q_offset = np.zeros(theta_e.shape)
+        n = t.shape[0]
+        segments.append(
+            SegmentData(
+                name=seg.name,
+                locked=seg.locked,
+                t=t,
+                voltages=seg.voltages(plan.sample_rate),
+                currents=np.stack([states[:, 0] + d_offset, states[:, 1] + q_offset], axis=1),
+                w_m=states[:, 2].copy() if record_speed else None,
+                temperature=None if seg.temperature is None else np.full(n, float(seg.temperature)),
+                theta_e=theta_e.copy() if record_speed else None,
+            )
+        )
+    return BenchData(segments=tuple(segments), sample_rate=plan.sample_rate, source="synthetic bench")
+
+
+def synthetic_bench(plan: Plan, motor: MotorParams, *, noise: float = 0.02, seed: int = 1) -> BenchData:
+    """Bench data from the engine with seeded Gaussian current-sensor noise.
+
+    Args:
+        plan: the experiment.
+        motor: the true machine.
+        noise: sensor noise standard deviation on i_d and i_q (A).
+        seed: seed of the noise generator (numpy ``default_rng``).
+    """
+    return engine_bench(plan, motor).add_noise(noise, seed)

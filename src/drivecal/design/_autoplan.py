@@ -1,0 +1,342 @@
+"""Auto-plan: a feasible, identifiable bench plan scaled to the motor at hand.
+
+From the datasheet motor and the bench's limits (DC-link voltage, current
+limit, speed limit, time budget) it builds the standard three segments —
+locked d-step (R, Ld), locked q-step (Lq), free spin-up (lambda_m) — with
+
+* **amplitudes** from the current limit and R: each step drives a steady
+  current of :data:`STEP_CURRENT_FRACTION` of the limit (``v = i * R``), never
+  more than :data:`VOLTAGE_FRACTION` of the voltage circle ``v_dc / sqrt(3)``;
+  the margins leave room for a datasheet that is 10 % off;
+* **sample rate** from the fastest electrical time constant ``min(Ld, Lq) / R``
+  (at least :data:`SAMPLES_PER_TIME_CONSTANT` samples per time constant, and at
+  most :data:`PLAN_MAX_ELECTRICAL_STEP` electrical radians per sample in the
+  spin-up): drivecal's forward model takes one RK4 step per sample, whose
+  error then stays orders of magnitude below any sensor noise;
+* **durations** from the time constants: :data:`LOCKED_TIME_CONSTANTS` ``L/R``
+  per locked step, :data:`SPIN_TIME_CONSTANTS` spin-up times for the free
+  segment (the mechanical time constant ``tm = J*R / (1.5 p^2 lambda_m^2)``, or
+  ``sqrt(tm * Lq/R)``, a quarter period of the electromechanical oscillation,
+  when that is longer), each at least :data:`MIN_SEGMENT_SAMPLES` samples;
+* a **spin-up voltage** whose predicted peak speed stays under
+  :data:`SPEED_FRACTION` of ``max_speed`` and of the no-load speed the voltage
+  allows (the open-loop step response overshoots by the electromechanical
+  damping, accounted for).
+
+The total sample count is rounded up to a power of two, lengthening every
+segment alike, so that plans of different
+motors share one compiled fit; a binding time budget shortens the segments
+instead, down to :data:`MIN_LOCKED_TIME_CONSTANTS` and
+:data:`MIN_SPIN_TIME_CONSTANTS`.
+
+The plan is then judged by :func:`drivecal.design.assess_design` on the
+nominal motor; a segment whose predicted peak current or speed breaks a limit
+is scaled down and the plan judged again. When no feasible, identifiable plan
+exists, :class:`~drivecal.errors.DrivecalError` says why in one sentence.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from ._assess import MAX_ELECTRICAL_STEP as _DESIGN_MAX_STEP
+from ._assess import DesignReport, assess_design
+from ..errors import DrivecalError
+from ..physics import ESTIMATED, MotorParams
+from ..plan import Plan, Segment
+
+#: Steady current of a locked step, and the current scale of the spin-up, as a fraction of the current limit.
+STEP_CURRENT_FRACTION = 0.5
+#: Largest share of the voltage circle ``v_dc / sqrt(3)`` a segment commands.
+VOLTAGE_FRACTION = 0.9
+#: Largest predicted peak speed as a share of ``max_speed`` (and of the no-load speed).
+SPEED_FRACTION = 0.8
+#: Largest predicted peak current as a share of the current limit before a segment is scaled down.
+CURRENT_MARGIN = 0.8
+#: Samples per fastest electrical time constant: RK4's local error ~ (dt/tau)^5 / 120 ~ 1e-7 of the current.
+SAMPLES_PER_TIME_CONSTANT = 10
+#: Electrical angle per sample (rad) in the spin-up: a fifth of what design accepts, RK4 phase error ~1e-7.
+PLAN_MAX_ELECTRICAL_STEP = 0.2 * _DESIGN_MAX_STEP
+#: Locked-step length in electrical time constants L/R: the transient (L) and a steady tail (R).
+LOCKED_TIME_CONSTANTS = 6.0
+#: Free spin-up length in spin-up times (see the module docstring).
+SPIN_TIME_CONSTANTS = 4.0
+#: Shortest segments a time budget may force.
+MIN_LOCKED_TIME_CONSTANTS = 3.0
+MIN_SPIN_TIME_CONSTANTS = 1.5
+#: Fewest samples per segment (noise averaging), unless a budget forbids.
+MIN_SEGMENT_SAMPLES = 200
+#: Bench sample rates considered (Hz).
+MIN_SAMPLE_RATE = 1_000.0
+MAX_SAMPLE_RATE = 200_000.0
+#: Fewest samples per electrical time constant accepted from a user-given sample rate.
+MIN_SAMPLES_PER_TIME_CONSTANT = 3
+#: Nominal sensor noise as a fraction of the current limit (full scale), for predicted intervals (A/A).
+NOISE_FRACTION = 0.002
+_ATTEMPTS = 8
+_NICE = (1.0, 1.25, 1.6, 2.0, 2.5, 3.2, 4.0, 5.0, 6.4, 8.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class MotorTimes:
+    """Characteristic times of a motor (s) and its electromechanical damping.
+
+    Attributes:
+        tau_d, tau_q: electrical time constants ``Ld/R``, ``Lq/R`` (s).
+        tau_m: mechanical time constant ``J*R / (1.5 p^2 lambda_m^2)`` (s).
+        zeta: damping ratio ``sqrt(tau_m / tau_q) / 2`` of the spin-up (i_d ~ 0, B ~ 0).
+        spin_time: ``max(tau_m, sqrt(tau_m * tau_q))`` (s): how long the speed takes to build up.
+    """
+
+    tau_d: float
+    tau_q: float
+    tau_m: float
+    zeta: float
+    spin_time: float
+
+    @classmethod
+    def of(cls, motor: MotorParams) -> MotorTimes:
+        r, p, lam = float(motor.R), float(motor.pole_pairs), float(motor.lambda_m)
+        tau_d, tau_q = float(motor.Ld) / r, float(motor.Lq) / r
+        tau_m = float(motor.J) * r / (1.5 * p**2 * lam**2)
+        return cls(tau_d, tau_q, tau_m, 0.5 * math.sqrt(tau_m / tau_q), max(tau_m, math.sqrt(tau_m * tau_q)))
+
+    @property
+    def overshoot(self) -> float:
+        """Peak over final speed of the open-loop step response (1 to 2, -)."""
+        if self.zeta >= 1.0:
+            return 1.0
+        return 1.0 + math.exp(-math.pi * self.zeta / math.sqrt(1.0 - self.zeta**2))
+
+
+def _nice_ceil(x: float) -> float:
+    """The smallest of 1, 1.25, 1.6, 2, 2.5, 3.2, 4, 5, 6.4, 8 x 10^k at or above ``x``."""
+    k = math.floor(math.log10(x))
+    for m in _NICE + (10.0,):
+        if m * 10.0**k >= x * (1 - 1e-12):
+            return m * 10.0**k
+    return 10.0 ** (k + 1)  # pragma: no cover
+
+
+def _bucket(n: int) -> int:
+    """The smallest power of two at or above ``n`` (a compiled fit is shared per size)."""
+    return 1 << max(int(n) - 1, 1).bit_length()
+
+
+def _spread(counts: list[int], total: int) -> list[int]:
+    """``counts`` scaled to sum to ``total`` (rounding absorbed by the longest)."""
+    scaled = [int(math.floor(c * total / sum(counts))) for c in counts]
+    i = max(range(len(counts)), key=lambda j: counts[j])
+    scaled[i] += total - sum(scaled)
+    return scaled
+
+
+@dataclasses.dataclass(frozen=True)
+class _Levels:
+    v_d_step: float
+    v_q_step: float
+    v_spin: float
+    sample_rate: float
+
+    def scaled(self, factors: tuple[float, float, float]) -> _Levels:
+        """Segment voltages multiplied by ``factors`` (d-step, q-step, spin-up)."""
+        return dataclasses.replace(self, v_d_step=self.v_d_step * factors[0], v_q_step=self.v_q_step * factors[1],
+                                   v_spin=self.v_spin * factors[2])
+
+
+def _sample_rate(times: MotorTimes, motor: MotorParams, v_spin: float, given: float | None) -> float:
+    tau = min(times.tau_d, times.tau_q)
+    # Peak electrical speed of the spin-up: overshoot * v / lambda_m (rad/s).
+    w_e_peak = times.overshoot * v_spin / float(motor.lambda_m)
+    if given is not None:
+        if given * tau < MIN_SAMPLES_PER_TIME_CONSTANT:
+            raise DrivecalError(
+                f"sample_rate {given:g} Hz gives {given * tau:.2g} samples per electrical time constant "
+                f"({tau:.3g} s); sample at least {MIN_SAMPLES_PER_TIME_CONSTANT / tau:.3g} Hz or leave it to auto-plan."
+            )
+        return float(given)
+    need = max(SAMPLES_PER_TIME_CONSTANT / tau, w_e_peak / PLAN_MAX_ELECTRICAL_STEP, MIN_SAMPLE_RATE)
+    if need > MAX_SAMPLE_RATE:
+        raise DrivecalError(
+            f"the motor's electrical time constant {tau:.3g} s needs a sample rate of {need:.3g} Hz, above the "
+            f"{MAX_SAMPLE_RATE:g} Hz auto-plan considers; give sample_rate explicitly if the bench can do it."
+        )
+    return _nice_ceil(need)
+
+
+def _segment_samples(times: MotorTimes, fs: float, budget: float | None) -> list[int]:
+    full = [max(LOCKED_TIME_CONSTANTS * times.tau_d * fs, MIN_SEGMENT_SAMPLES),
+            max(LOCKED_TIME_CONSTANTS * times.tau_q * fs, MIN_SEGMENT_SAMPLES),
+            max(SPIN_TIME_CONSTANTS * times.spin_time * fs, MIN_SEGMENT_SAMPLES)]
+    full = [int(math.ceil(n)) for n in full]
+    total = sum(full)
+    limit = None if budget is None else int(math.floor(budget * fs + 1e-9))
+    if limit is None or _bucket(total) <= limit:
+        return _spread(full, _bucket(total))
+    if total <= limit:
+        return full
+    least = [int(math.ceil(n)) for n in (MIN_LOCKED_TIME_CONSTANTS * times.tau_d * fs,
+                                         MIN_LOCKED_TIME_CONSTANTS * times.tau_q * fs,
+                                         MIN_SPIN_TIME_CONSTANTS * times.spin_time * fs)]
+    least = [max(n, 2) for n in least]
+    if sum(least) > limit:
+        need = sum(least) / fs
+        raise DrivecalError(
+            f"budget {budget:g} s is too short for this motor: the plan needs at least {need:.3g} s "
+            f"({MIN_LOCKED_TIME_CONSTANTS:g} electrical time constants per locked step and "
+            f"{MIN_SPIN_TIME_CONSTANTS:g} spin-up times of {times.spin_time:.3g} s); give a budget of at least "
+            f"{need:.3g} s."
+        )
+    # Shorten every segment alike, between its least and its full length.
+    share = (limit - sum(least)) / (total - sum(least))
+    counts = [lo + int(math.floor(share * (hi - lo))) for lo, hi in zip(least, full)]
+    return counts
+
+
+def _plan(levels: _Levels, counts: list[int], v_dc: float, current_limit: float,
+          max_speed: float | None) -> Plan:
+    fs = levels.sample_rate
+    return Plan(
+        segments=(
+            Segment("locked d-step", counts[0] / fs, locked=True, v_d=levels.v_d_step, v_q=0.0),
+            Segment("locked q-step", counts[1] / fs, locked=True, v_d=0.0, v_q=levels.v_q_step),
+            Segment("free spin-up", counts[2] / fs, locked=False, v_d=0.0, v_q=levels.v_spin),
+        ),
+        sample_rate=fs,
+        v_dc=float(v_dc),
+        current_limit=float(current_limit),
+        max_speed=None if max_speed is None else float(max_speed),
+    )
+
+
+def _check_inputs(motor: MotorParams, v_dc: float, current_limit: float, max_speed, budget, sample_rate) -> None:
+    for name, value, unit in (("v_dc", v_dc, "V"), ("current_limit", current_limit, "A"),
+                              ("max_speed", max_speed, "rad/s"), ("budget", budget, "s"),
+                              ("sample_rate", sample_rate, "Hz")):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise DrivecalError(f"{name} must be a positive number of {unit}, got {value!r}.")
+    for name in ESTIMATED + ("pole_pairs", "J"):
+        value = float(getattr(motor, name))
+        if not (math.isfinite(value) and value > 0):
+            raise DrivecalError(f"the motor's {name} must be a positive number, got {value!r}.")
+
+
+def auto_design(
+    motor: MotorParams,
+    *,
+    v_dc: float,
+    current_limit: float,
+    max_speed: float | None = None,
+    budget: float | None = None,
+    sample_rate: float | None = None,
+    noise_sigma: float | None = None,
+) -> DesignReport:
+    """:func:`auto_plan` and its assessment on ``motor`` (the :class:`DesignReport`).
+
+    Args: as :func:`auto_plan`, plus
+        noise_sigma: sensor noise (A) for the predicted intervals; default
+            :data:`NOISE_FRACTION` of ``current_limit``.
+    """
+    _check_inputs(motor, v_dc, current_limit, max_speed, budget, sample_rate)
+    times = MotorTimes.of(motor)
+    sigma = NOISE_FRACTION * current_limit if noise_sigma is None else float(noise_sigma)
+    r, p, lam = float(motor.R), float(motor.pole_pairs), float(motor.lambda_m)
+    v_max = VOLTAGE_FRACTION * v_dc / math.sqrt(3.0)
+    v_step = min(STEP_CURRENT_FRACTION * current_limit * r, v_max)
+    no_load = (v_dc / math.sqrt(3.0)) / (p * lam)  # rad/s, where back-EMF meets the voltage circle
+    w_limit = no_load if max_speed is None else min(max_speed, no_load)
+    w_cap = SPEED_FRACTION * w_limit
+    # The spin-up starts like a locked q-step (current <= v/R) and settles at w = v/(p lambda_m),
+    # after an overshoot set by the electromechanical damping.
+    v_spin = min(v_step, w_cap * p * lam / times.overshoot)
+    levels = _Levels(v_step, v_step, v_spin, 0.0)
+
+    def judge(levels: _Levels) -> DesignReport:
+        fs = _sample_rate(times, motor, levels.v_spin, sample_rate)
+        levels = dataclasses.replace(levels, sample_rate=fs)
+        plan = _plan(levels, _segment_samples(times, fs, budget), v_dc, current_limit, max_speed)
+        return assess_design(plan, motor, noise_sigma=sigma)
+
+    report = judge(levels)
+    for _ in range(_ATTEMPTS):
+        if report.ok:
+            break
+        scale = _scale_down(report, current_limit, w_limit, w_cap)
+        if scale is None:
+            break  # feasible but not identifiable: smaller amplitudes will not help
+        levels = levels.scaled(scale)
+        report = judge(levels)
+    if report.ok:
+        # The spin-up's back-EMF keeps its current well under a locked step's: spin it faster,
+        # within the same current, the speed cap and the voltage circle, for a tighter lambda_m.
+        spin = report.segments[2]
+        boost = min(STEP_CURRENT_FRACTION * current_limit / spin.peak_current, w_cap / spin.peak_speed,
+                    v_max / levels.v_spin)
+        if boost > 1.05:
+            boosted = judge(levels.scaled((1.0, 1.0, boost)))
+            if boosted.ok:
+                report = boosted
+        return report
+    if not report.feasible:
+        raise DrivecalError(f"no feasible plan found for this motor within the limits: {report.problems[0]}")
+    ident = report.identifiability
+    weak = ident.dead_params + ident.confounded_params + ident.weak_params
+    raise DrivecalError(
+        "the auto-plan for this motor does not identify "
+        + (", ".join(weak) if weak else f"all parameters (condition number {ident.condition_number:.3g})")
+        + "; raise the budget, the current limit or max_speed."
+    )
+
+
+def _scale_down(report: DesignReport, current_limit: float, w_limit: float,
+                w_cap: float) -> tuple[float, float, float] | None:
+    """Per-segment voltage factors that bring predicted peaks back inside the limits, or None if none broke."""
+    scale = [1.0, 1.0, 1.0]
+    for i, s in enumerate(report.segments):
+        if not s.finite:
+            scale[i] = 0.5
+            continue
+        if s.peak_current > current_limit:
+            scale[i] = min(scale[i], CURRENT_MARGIN * current_limit / s.peak_current)
+        if not s.locked and s.peak_speed > w_limit:
+            scale[i] = min(scale[i], w_cap / s.peak_speed)
+        if not s.locked and s.peak_electrical_step > _DESIGN_MAX_STEP:
+            scale[i] = min(scale[i], SPEED_FRACTION * _DESIGN_MAX_STEP / s.peak_electrical_step)
+    return None if scale == [1.0, 1.0, 1.0] else (scale[0], scale[1], scale[2])
+
+
+def auto_plan(
+    motor: MotorParams,
+    *,
+    v_dc: float,
+    current_limit: float,
+    max_speed: float | None = None,
+    budget: float | None = None,
+    sample_rate: float | None = None,
+) -> Plan:
+    """A feasible, identifiable three-segment calibration plan scaled to ``motor``.
+
+    Args:
+        motor: the nominal (datasheet) motor: R (ohm), Ld, Lq (H), lambda_m
+            (Wb), pole_pairs, J (kg*m^2), B (N*m*s).
+        v_dc: the bench's DC-link voltage (V); segments stay inside
+            ``VOLTAGE_FRACTION * v_dc / sqrt(3)``.
+        current_limit: the bench's peak current limit (A), the largest ``|i_dq|``.
+        max_speed: highest mechanical speed allowed in the free spin-up (rad/s);
+            default: the no-load speed the voltage allows.
+        budget: longest total plan duration (s), or None.
+        sample_rate: the bench's sample rate (Hz); default chosen from the
+            motor's time constants.
+
+    Returns:
+        A :class:`Plan` (locked d-step, locked q-step, free spin-up) that
+        :func:`drivecal.design.assess_design` judges feasible and identifiable
+        on ``motor``.
+
+    Raises:
+        DrivecalError: bad limits, or no feasible identifiable plan exists
+            (one sentence naming the limit to change).
+    """
+    return auto_design(motor, v_dc=v_dc, current_limit=current_limit, max_speed=max_speed, budget=budget,
+                       sample_rate=sample_rate).plan

@@ -1,0 +1,169 @@
+"""The one-line verdict of a calibration, and the residual checks behind it.
+
+The criterion, kept simple on purpose so a reader can check it by hand:
+
+1. **not calibrated: the fit did not converge** when the LM solve failed.
+2. **model mismatch suspected** when either
+   * the residual standard deviation is well above the stated sensor noise:
+     ``sigma_hat > SIGMA_RATIO_MAX * sigma_stated`` (1.5: with thousands of
+     samples, sigma_hat of a correct model lies within a few percent of the
+     noise; 50 % more is a systematic error, not bad luck), or
+   * the residuals are not white: a Ljung-Box test with ``WHITENESS_LAGS``
+     lags on each segment and current axis rejects at family-wise level
+     ``WHITENESS_ALPHA`` (Bonferroni over the tests). A correct model leaves
+     sensor noise, which is white; an unmodelled effect (a wrong R, saturation,
+     dead time) leaves a smooth, autocorrelated trace.
+   * a score test finds the signature of a bench effect the model left out
+     (dead time, sensor offsets, more delay; ``mismatch.py``) at family-wise
+     level 1e-3: the detail names the effect and the fix.
+   A sigma_hat well *below* the stated noise is reported as a note only.
+3. **partially calibrated: <names> not identifiable by this plan** when the
+   identifiability check held some parameters at their prior.
+4. **calibrated** otherwise.
+
+Everything here reads plain arrays or the result JSON: the same verdict comes
+out of a fresh fit and out of a saved file.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from .._stats import chi2_sf
+
+#: sigma_hat above this multiple of the stated sensor noise means mismatch.
+SIGMA_RATIO_MAX = 1.5
+#: Lags of the Ljung-Box whiteness test.
+WHITENESS_LAGS = 10
+#: Family-wise false-alarm rate of the whiteness tests of one fit.
+WHITENESS_ALPHA = 1e-3
+
+
+def ljung_box(x: np.ndarray, lags: int = WHITENESS_LAGS) -> tuple[Any, Any]:
+    """Ljung-Box statistic ``Q = N(N+2) sum_k r_k^2/(N-k)`` and its chi^2(lags) p-value.
+
+    Args:
+        x: residual series along the last axis, shape (..., N), N > lags + 1;
+            leading axes (motors of a fleet, segments) are tested independently.
+        lags: number of autocorrelation lags summed.
+
+    Returns:
+        ``(Q, p)``: floats for one series, arrays of shape (...) otherwise
+        (NaN where a series is too short or constant).
+    """
+    x = np.asarray(x, dtype=float)
+    n = x.shape[-1]
+    lags = min(lags, n - 2)
+    if lags < 1:
+        nan = np.full(x.shape[:-1], np.nan)
+        return (float("nan"), float("nan")) if x.ndim == 1 else (nan, nan)
+    d = x - x.mean(axis=-1, keepdims=True)
+    # einsum sums the lagged products without a temporary array per lag (a fleet tests ~1000 series a chunk).
+    denom = np.einsum("...i,...i->...", d, d)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.stack([np.einsum("...i,...i->...", d[..., :-k], d[..., k:]) for k in range(1, lags + 1)], axis=-1)
+        r = r / denom[..., None]
+        q = n * (n + 2) * np.sum(r**2 / (n - np.arange(1, lags + 1)), axis=-1)
+    q = np.where(denom > 0, q, np.nan)
+    p = chi2_sf(q, lags)
+    return (float(q), float(p)) if x.ndim == 1 else (q, p)
+
+
+def residual_checks(
+    segments: Sequence[tuple[str, np.ndarray]], sigma_hat: float, sigma_stated: float | None
+) -> dict[str, Any]:
+    """Residual diagnostics of one fit.
+
+    Args:
+        segments: per segment, its name and residuals ``measured - predicted``
+            (A), shape (N, 2) for i_d, i_q.
+        sigma_hat: residual standard deviation of the fit (A).
+        sigma_stated: the sensor noise the user states (A), or None.
+
+    Returns:
+        The JSON ``residuals`` block: per segment and axis RMS (A), lag-1
+        autocorrelation and Ljung-Box p-value; the Bonferroni threshold; the
+        sigma ratio; and the two booleans ``white`` and ``noise_consistent``.
+    """
+    tests = []
+    per_segment = []
+    for name, res in segments:
+        res = np.asarray(res, dtype=float)
+        entry: dict[str, Any] = {"name": name, "num_samples": int(res.shape[0])}
+        for k, axis in enumerate(("i_d", "i_q")):
+            r = res[:, k]
+            _, p = ljung_box(r)
+            d = r - r.mean()
+            lag1 = float(d[:-1] @ d[1:] / (d @ d)) if r.shape[0] > 2 and d @ d > 0 else None
+            entry[axis] = {
+                "rms": float(np.sqrt(np.mean(r**2))),
+                # A segment the model misses stands out here even when the overall sigma_hat looks fine.
+                "rms_over_sigma_hat": float(np.sqrt(np.mean(r**2)) / sigma_hat) if sigma_hat > 0 else None,
+                "mean": float(r.mean()),
+                "lag1_autocorrelation": lag1,
+                "ljung_box_p": None if not np.isfinite(p) else p,
+            }
+            if np.isfinite(p):
+                tests.append(p)
+        per_segment.append(entry)
+    threshold = WHITENESS_ALPHA / max(len(tests), 1)
+    white = all(p >= threshold for p in tests)
+    ratio = float(sigma_hat / sigma_stated) if sigma_stated else None
+    return {
+        "sigma_hat": float(sigma_hat),
+        "sigma_stated": None if sigma_stated is None else float(sigma_stated),
+        "sigma_ratio": ratio,
+        "sigma_ratio_max": SIGMA_RATIO_MAX,
+        "noise_consistent": ratio is None or ratio <= SIGMA_RATIO_MAX,
+        "whiteness_lags": WHITENESS_LAGS,
+        "whiteness_alpha": WHITENESS_ALPHA,
+        "whiteness_p_threshold": threshold,
+        "white": bool(white),
+        "per_segment": per_segment,
+    }
+
+
+def verdict(result: dict[str, Any]) -> dict[str, Any]:
+    """The verdict of one fit's result JSON (see the module docstring for the rule).
+
+    Returns:
+        ``{"status", "headline", "details"}``: status one of ``calibrated``,
+        ``partial``, ``mismatch``, ``failed``; the headline is the sentence a
+        report leads with; details list every finding, most serious first.
+    """
+    not_ident = [n for n, p in result["parameters"].items() if not p["identifiable"]]
+    res = result.get("residuals") or {}
+    details = []
+    mismatch = False
+    if res and not res.get("noise_consistent", True):
+        mismatch = True
+        details.append(
+            f"sigma_hat {res['sigma_hat'] * 1e3:.4g} mA is {res['sigma_ratio']:.2f} times the stated sensor noise "
+            f"{res['sigma_stated'] * 1e3:.4g} mA (limit {res['sigma_ratio_max']:g}x): the model does not explain "
+            "the data to the noise level"
+        )
+    if res and not res.get("white", True):
+        mismatch = True
+        bad = [f"{s['name']} {ax}" for s in res["per_segment"] for ax in ("i_d", "i_q")
+               if s[ax]["ljung_box_p"] is not None and s[ax]["ljung_box_p"] < res["whiteness_p_threshold"]]
+        details.append("residuals are not white (Ljung-Box, " + ", ".join(bad) + "): a systematic, unmodelled effect")
+    for effect in res.get("unmodelled_effects") or []:
+        if effect["suspected"]:
+            mismatch = True
+            details.append(effect["message"])
+    if res.get("sigma_ratio") is not None and res["sigma_ratio"] < 1.0 / SIGMA_RATIO_MAX:
+        details.append(f"note: sigma_hat is only {res['sigma_ratio']:.2f} times the stated sensor noise; "
+                       "the stated noise may be too pessimistic")
+    if not_ident:
+        details.append(f"{', '.join(not_ident)} not identifiable by this plan: held at the prior, not calibrated")
+    if not result["converged"]:
+        status, headline = "failed", f"not calibrated: the fit did not converge ({result.get('message', '')})"
+    elif mismatch:
+        status, headline = "mismatch", "model mismatch suspected"
+    elif not_ident:
+        status, headline = "partial", f"partially calibrated: {', '.join(not_ident)} not identifiable by this plan"
+    else:
+        status, headline = "calibrated", "calibrated"
+    return {"status": status, "headline": headline, "details": details}

@@ -1,0 +1,271 @@
+"""Traced computations kept on disk, so that a new process need not trace them again.
+
+JAX's persistent compilation cache (see ``drivecal/__init__.py``) keeps the
+compiled kernels, but its key is the lowered program: every new process still
+traces and lowers each jitted function before it can look the kernel up, and
+for the fit's solve that is seconds of Python. :func:`call` keeps the lowered
+program itself (``jax.export``: StableHLO and its signature) next to the
+kernels, keyed by everything the trace depends on: drivecal's source code, the
+versions of the libraries traced through, the structure, shapes and dtypes of
+the arguments, the static arguments and the JAX settings that change a trace.
+A later process loads it and runs it; its kernel is then an ordinary
+compilation-cache hit. (Keeping the compiled executable instead would also
+skip that lowering, but jaxlib 0.9 serialises an executable that itself came
+from the compilation cache without its code: it fails when run.)
+
+The same program runs whether it was just traced or loaded, so the numbers do
+not depend on the state of the cache (and they are those of the plain
+``jax.jit`` call). Off with ``DRIVECAL_JAX_CACHE=0`` (the plain call then
+runs); any failure to export, save or load falls back to the plain call.
+Calls with tracers (inside ``jit``, ``vmap`` or ``grad``) always take the plain
+call.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import logging
+import os
+import pickle
+import tempfile
+import zlib
+from importlib import metadata
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+#: Bump when the on-disk entry changes meaning.
+_FORMAT = 4
+#: Entries kept; beyond this the least recently used go (a program is ~10-50 kB compressed).
+_MAX_ENTRIES = 256
+#: Libraries whose code is traced into drivecal's computations.
+_TRACED_LIBRARIES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "numpy")
+#: Marks a computation that cannot be exported: later processes go straight to the plain call.
+_UNKEPT = b"not kept"
+
+# key -> (jitted call of the loaded program, output tree), or None: use the plain call.
+_LOADED: dict[str, tuple[Callable, Any] | None] = {}
+
+
+def directory() -> Path | None:
+    """Where lowered programs are kept (inside the compilation cache), or None when caching is off."""
+    from .._setup import cache_enabled as _cache_enabled
+
+    if not _cache_enabled():
+        return None
+    base = jax.config.jax_compilation_cache_dir
+    return Path(base) / "drivecal-traced" if base else None
+
+
+@functools.lru_cache(maxsize=1)
+def _fingerprint() -> str:
+    """What every trace depends on: drivecal's source (every module of every sub-package) and the traced libraries' versions."""
+    h = hashlib.sha256(f"drivecal traced v{_FORMAT}\n".encode())
+    for dist in _TRACED_LIBRARIES:
+        try:
+            version = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            version = "-"
+        h.update(f"{dist}=={version}\n".encode())
+    root = package_root()
+    for path in source_files():
+        h.update(path.relative_to(root).as_posix().encode() + b"\n" + path.read_bytes() + b"\n")
+    return h.hexdigest()
+
+
+def package_root() -> Path:
+    """The drivecal package's folder (this module lives in its ``model`` sub-package)."""
+    return Path(__file__).resolve().parents[1]
+
+
+def source_files() -> list[Path]:
+    """Every Python source file of the package, in every sub-package, sorted: what the key's fingerprint reads."""
+    return sorted(package_root().rglob("*.py"))
+
+
+def _settings() -> str:
+    c = jax.config
+    device = jax.devices()[0]
+    return repr((device.platform, device.device_kind, device.client.platform_version, c.jax_enable_x64,
+                 c.jax_default_matmul_precision, c.jax_debug_nans, c.jax_debug_infs, c.jax_numpy_rank_promotion,
+                 c.jax_numpy_dtype_promotion))
+
+
+#: (name, tree, static arguments, leaf shapes and dtypes) -> key: hashing the key anew costs ~1 ms a call.
+_KEYS: dict[tuple, str] = {}
+
+
+def _key(name: str, leaves: list, treedef: Any, static: dict[str, Any]) -> str:
+    try:
+        quick = (name, treedef, tuple(sorted(static.items())),
+                 tuple((np.shape(x), getattr(x, "dtype", type(x)), getattr(x, "weak_type", False)) for x in leaves))
+        hash(quick)
+    except TypeError:  # an unhashable static argument: no memo
+        return _full_key(name, leaves, treedef, static)
+    if quick not in _KEYS:
+        _KEYS[quick] = _full_key(name, leaves, treedef, static)
+    return _KEYS[quick]
+
+
+def _full_key(name: str, leaves: list, treedef: Any, static: dict[str, Any]) -> str:
+    h = hashlib.sha256(_fingerprint().encode())
+    h.update(_settings().encode())
+    h.update(f"\n{name}\n{treedef}\n{sorted(static.items())!r}\n".encode())
+    for leaf in leaves:
+        h.update(f"{jax.typeof(leaf)};".encode())
+    return h.hexdigest()
+
+
+def _prune(folder: Path) -> None:
+    """Drop the least recently used entries beyond ``_MAX_ENTRIES``."""
+    entries = []
+    for p in folder.glob("*.pkl"):
+        try:
+            entries.append((p.stat().st_mtime, p))
+        except OSError:
+            pass
+    for _, p in sorted(entries)[: max(len(entries) - _MAX_ENTRIES, 0)]:
+        p.unlink(missing_ok=True)
+
+
+def _write(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)  # atomic: a concurrent reader sees all of it or nothing
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+@functools.lru_cache(maxsize=1)
+def _initialize_lapack() -> None:
+    """Load JAX's CPU LAPACK kernels, as lowering a linear-algebra op would.
+
+    A program lowered in another process calls them without any of their
+    lowering rules running here, and uninitialised kernels crash the process
+    (a null function pointer; jax-ml/jax#29610).
+    """
+    try:
+        from jax._src.lib import lapack
+
+        lapack.prepare_lapack_call("getrf_ffi", np.dtype(np.float64))
+    except Exception:
+        import jax.numpy as jnp
+
+        jax.jit(jnp.linalg.inv).lower(jax.ShapeDtypeStruct((2, 2), jnp.float64))
+
+
+def _runner(exported: Any) -> Callable:
+    _initialize_lapack()
+    return jax.jit(lambda *leaves: exported.call(*leaves))
+
+
+def _load(path: Path) -> tuple[Callable, Any] | None | bool:
+    """The entry at ``path``: (runner, out_tree), None (not kept), or False (absent or unreadable)."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return False
+    if data == _UNKEPT:
+        return None
+    try:
+        exported, out_tree = pickle.loads(zlib.decompress(data))
+        entry = _runner(exported), out_tree
+    except Exception as exc:  # a stale or damaged entry: trace again and overwrite it
+        logger.debug("drivecal: ignoring cache entry %s (%s)", path, exc)
+        return False
+    try:
+        os.utime(path)  # recently used: kept by _prune
+    except OSError:
+        pass
+    return entry
+
+
+def _export(fn: Callable, name: str, leaves: list, treedef: Any, static: dict[str, Any],
+            path: Path) -> tuple[Callable, Any] | None:
+    """Trace and lower ``fn`` for these arguments and keep the program at ``path``; None: use the plain call."""
+    import dataclasses
+
+    from jax import export
+
+    out_tree = []
+
+    def flat(*flat_args):
+        out = fn(*jax.tree_util.tree_unflatten(treedef, flat_args), **static)
+        out_leaves, tree = jax.tree_util.tree_flatten(out)
+        out_tree.append(tree)
+        return out_leaves
+
+    try:
+        exported = export.export(jax.jit(flat))(*leaves)
+        # The VJP hook is a closure (not needed: these calls are never differentiated).
+        exported = dataclasses.replace(exported, _get_vjp=None)
+        data = pickle.dumps((exported, out_tree[0]))
+        # Only trees of tuples, lists, dicts and None come back intact (an equinox
+        # Module's tree does not): anything else is not kept.
+        if pickle.loads(data)[1] != out_tree[0]:
+            raise TypeError(f"the output structure {out_tree[0]} does not survive pickling")
+        data = zlib.compress(data)
+    except Exception as exc:
+        logger.debug("drivecal: %s cannot be exported (%s); tracing it every run", name, exc)
+        try:
+            _write(path, _UNKEPT)
+        except OSError:
+            pass
+        return None  # the plain call, as in every later process
+    try:
+        _write(path, data)
+        _prune(path.parent)
+    except OSError as exc:
+        logger.debug("drivecal: could not save %s (%s)", path, exc)
+    return _runner(exported), out_tree[0]
+
+
+def call(fn: Callable, name: str, *args: Any, **static: Any) -> Any:
+    """``fn(*args, **static)``, traced once per machine rather than once per process.
+
+    Args:
+        fn: a function of arrays (pytrees of them) ``args``, traceable by ``jax.jit``,
+            that returns arrays in tuples, lists or dicts (not in custom pytree nodes).
+        name: names ``fn`` in the cache key (unique per function).
+        args: the traced arguments.
+        static: arguments fixed at trace time; their ``repr`` is part of the key.
+    """
+    if jax.config.jax_disable_jit:
+        return fn(*args, **static)
+    leaves, treedef = jax.tree_util.tree_flatten(args)
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
+        return fn(*args, **static)
+    folder = directory()
+    if folder is None:
+        return fn(*args, **static)
+    try:
+        key = _key(name, leaves, treedef, static)
+    except Exception as exc:  # e.g. a leaf JAX cannot type: not a traced call at all
+        logger.debug("drivecal: no cache key for %s (%s)", name, exc)
+        return fn(*args, **static)
+    if key not in _LOADED:
+        path = folder / f"{name}-{key[:32]}.pkl"
+        entry = _load(path)
+        if entry is False:
+            entry = _export(fn, name, leaves, treedef, static, path)
+        _LOADED[key] = entry
+    entry = _LOADED[key]
+    if entry is None:
+        return fn(*args, **static)
+    run, out_tree = entry
+    try:
+        out = run(*leaves)
+    except Exception as exc:  # the kept program does not fit after all: never use it again here
+        logger.debug("drivecal: cached %s failed (%s); tracing it", name, exc)
+        _LOADED[key] = None
+        return fn(*args, **static)
+    return jax.tree_util.tree_unflatten(out_tree, out)

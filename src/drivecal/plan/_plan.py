@@ -1,0 +1,163 @@
+"""Bench plans: segments of applied dq voltage, and their feasibility.
+
+A plan is a list of segments run one after another on the bench, each from
+rest. In a segment the rotor is either locked (standstill test: R, Ld, Lq) or
+free (spin-up: the only place lambda_m shows). Voltages are commanded per
+sample and held between samples, which is what an inverter's PWM does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Sequence, Union
+
+import numpy as np
+
+from ..errors import PlanError
+
+#: A voltage is a constant (V) or one value per sample (V), held between samples.
+Voltage = Union[float, Sequence[float], np.ndarray]
+
+
+@dataclasses.dataclass(frozen=True)
+class Segment:
+    """One bench segment.
+
+    Attributes:
+        name: label used in tables, files and error messages.
+        duration: length of the segment (s); it holds ``round(duration * sample_rate)``
+            samples at ``t_k = k / sample_rate``, k = 0, 1, ...
+        locked: rotor clamped (True) or free to turn (False).
+        v_d, v_q: applied d/q voltage (V): a constant, or a sequence with one
+            value per sample, value k applied on ``[t_k, t_k+1)``.
+        temperature: winding temperature during the segment (degC), or None
+            when not controlled; R follows it (``motor.resistance_at``).
+    """
+
+    name: str
+    duration: float
+    locked: bool
+    v_d: Voltage = 0.0
+    v_q: Voltage = 0.0
+    temperature: float | None = None
+
+    def num_samples(self, sample_rate: float) -> int:
+        """Number of samples ``round(duration * sample_rate)``."""
+        return int(round(self.duration * sample_rate))
+
+    def voltages(self, sample_rate: float) -> np.ndarray:
+        """Per-sample ``[v_d, v_q]`` (V), shape (num_samples, 2).
+
+        Raises:
+            PlanError: a per-sample sequence whose length is not num_samples.
+        """
+        n = self.num_samples(sample_rate)
+        columns = []
+        for axis, value in (("v_d", self.v_d), ("v_q", self.v_q)):
+            arr = np.asarray(value, dtype=float)
+            if arr.ndim == 0:
+                arr = np.full(n, float(arr))
+            elif arr.shape != (n,):
+                raise PlanError(
+                    f"segment '{self.name}': {axis} has {arr.size} values but the segment holds "
+                    f"{n} samples ({self.duration} s at {sample_rate:g} Hz); give one value per sample "
+                    "or a constant."
+                )
+            columns.append(arr)
+        return np.stack(columns, axis=1)
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """A bench experiment: segments run in order at one sample rate.
+
+    Attributes:
+        segments: the segments, each starting from rest.
+        sample_rate: current sampling (and voltage update) rate (Hz).
+        v_dc: DC-link voltage (V); the inverter reaches ``|v_dq| <= v_dc / sqrt(3)``.
+        current_limit: the bench's peak phase-current limit (A).
+        max_speed: highest mechanical speed the bench allows on free segments
+            (rad/s), or None for no stated limit.
+    """
+
+    segments: tuple[Segment, ...]
+    sample_rate: float = 20_000.0
+    v_dc: float = 48.0
+    current_limit: float = 30.0
+    max_speed: float | None = None
+
+    @property
+    def sample_period(self) -> float:
+        """``1 / sample_rate`` (s)."""
+        return 1.0 / self.sample_rate
+
+    @property
+    def voltage_limit(self) -> float:
+        """Largest reachable ``|v_dq|`` with space-vector PWM, ``v_dc / sqrt(3)`` (V)."""
+        return self.v_dc / math.sqrt(3.0)
+
+    @property
+    def num_samples(self) -> int:
+        """Samples over all segments."""
+        return sum(s.num_samples(self.sample_rate) for s in self.segments)
+
+    def check_feasible(self) -> Plan:
+        """Raise :class:`PlanError` naming the first infeasible segment; return self otherwise.
+
+        Checks: positive sample rate and V_dc, at least one segment, unique names,
+        at least two samples per segment, finite voltages, and every commanded
+        ``|v_dq|`` inside the voltage circle ``v_dc / sqrt(3)``.
+        """
+        if not (self.sample_rate > 0 and math.isfinite(self.sample_rate)):
+            raise PlanError(f"sample_rate must be a positive number of Hz, got {self.sample_rate!r}.")
+        if not (self.v_dc > 0 and math.isfinite(self.v_dc)):
+            raise PlanError(f"v_dc must be a positive number of volts, got {self.v_dc!r}.")
+        if not self.segments:
+            raise PlanError("the plan has no segments; add at least one.")
+        names = [s.name for s in self.segments]
+        if len(set(names)) != len(names):
+            raise PlanError(f"segment names must be unique, got {names}.")
+        limit = self.voltage_limit
+        for seg in self.segments:
+            n = seg.num_samples(self.sample_rate)
+            if n < 2:
+                raise PlanError(
+                    f"segment '{seg.name}': {seg.duration} s at {self.sample_rate:g} Hz is {n} sample(s); "
+                    "make it at least two sample periods long."
+                )
+            v = seg.voltages(self.sample_rate)
+            if not np.all(np.isfinite(v)):
+                raise PlanError(f"segment '{seg.name}': voltages must be finite numbers.")
+            magnitude = np.hypot(v[:, 0], v[:, 1])
+            k = int(np.argmax(magnitude))
+            if magnitude[k] > limit * (1.0 + 1e-12):
+                raise PlanError(
+                    f"segment '{seg.name}': |v_dq| reaches {magnitude[k]:.2f} V at t = {k / self.sample_rate:g} s, "
+                    f"outside the voltage circle v_dc/sqrt(3) = {limit:.2f} V; lower the amplitude or raise v_dc."
+                )
+        return self
+
+
+def default_plan() -> Plan:
+    """The standard three-segment calibration at 20 kHz.
+
+    Locked d-step (8 V, 10 ms) for R and Ld, locked q-step (8 V, 10 ms) for Lq,
+    free spin-up (v_q 12 V, 50 ms) for lambda_m.
+    """
+    return Plan(
+        segments=(
+            Segment("locked d-step", 0.010, locked=True, v_d=8.0, v_q=0.0),
+            Segment("locked q-step", 0.010, locked=True, v_d=0.0, v_q=8.0),
+            Segment("free spin-up", 0.050, locked=False, v_d=0.0, v_q=12.0),
+        )
+    )
+
+
+def locked_q_step_plan() -> Plan:
+    """A poor design: one locked q-step (8 V, 10 ms) and nothing else.
+
+    No d-axis voltage leaves Ld invisible; a locked rotor leaves lambda_m
+    invisible. Only R and Lq can be identified.
+    """
+    return Plan(segments=(Segment("locked q-step", 0.010, locked=True, v_d=0.0, v_q=8.0),))

@@ -1,0 +1,159 @@
+"""Excitation waveforms: one applied voltage per sample (V), held between samples.
+
+Each generator takes the number of samples ``n`` and the sample rate (Hz) and
+returns an array of shape (n,). Value k is applied on ``[t_k, t_k+1)`` with
+``t_k = k / sample_rate``. Amplitudes are peak values about ``offset``, so the
+largest ``|v|`` of a waveform is ``|offset| + amplitude``; the plan's feasibility
+check then holds the two axes together inside the voltage circle.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import PlanError
+
+
+def _times(n: int, sample_rate: float) -> np.ndarray:
+    return np.arange(n) / sample_rate
+
+
+def step(n: int, sample_rate: float, *, level: float, initial: float = 0.0, delay: float = 0.0) -> np.ndarray:
+    """``initial`` (V) before ``delay`` (s), ``level`` (V) from then on."""
+    return np.where(_times(n, sample_rate) >= delay - 0.5 / sample_rate, level, initial).astype(float)
+
+
+def chirp(
+    n: int,
+    sample_rate: float,
+    *,
+    amplitude: float,
+    f_start: float,
+    f_stop: float,
+    sweep: str = "linear",
+    offset: float = 0.0,
+    phase: float = 0.0,
+) -> np.ndarray:
+    """Swept sine ``offset + amplitude*sin(phi(t) + phase)`` from ``f_start`` to ``f_stop`` (Hz).
+
+    ``sweep`` is ``"linear"`` (frequency linear in time) or ``"log"``
+    (exponential: equal time per octave). The sweep spans the whole segment.
+    """
+    if not (0 < f_start and 0 < f_stop):
+        raise PlanError(f"chirp: f_start and f_stop must be positive, got {f_start} Hz and {f_stop} Hz.")
+    if max(f_start, f_stop) >= sample_rate / 2:
+        raise PlanError(
+            f"chirp: {max(f_start, f_stop):g} Hz is at or above the Nyquist frequency {sample_rate / 2:g} Hz; "
+            "lower f_stop."
+        )
+    t = _times(n, sample_rate)
+    duration = n / sample_rate
+    if sweep == "linear":
+        phi = 2 * math.pi * (f_start * t + 0.5 * (f_stop - f_start) / duration * t**2)
+    elif sweep == "log":
+        if f_start == f_stop:
+            phi = 2 * math.pi * f_start * t
+        else:
+            k = math.log(f_stop / f_start) / duration
+            phi = 2 * math.pi * f_start * np.expm1(k * t) / k
+    else:
+        raise PlanError(f"chirp: sweep must be 'linear' or 'log', got {sweep!r}.")
+    return offset + amplitude * np.sin(phi + phase)
+
+
+def multisine(
+    n: int,
+    sample_rate: float,
+    *,
+    amplitude: float,
+    f_min: float,
+    f_max: float,
+    num_tones: int = 16,
+    offset: float = 0.0,
+) -> np.ndarray:
+    """Schroeder-phased multisine with peak ``amplitude`` (V) about ``offset``.
+
+    ``num_tones`` equal-amplitude tones on harmonics of the segment's base
+    frequency ``sample_rate / n``, spread logarithmically over
+    ``[f_min, f_max]`` (Hz). Schroeder phases ``phi_k = -pi*k*(k-1)/K`` keep
+    the crest factor low; the sum is then scaled so its peak is ``amplitude``.
+    """
+    base = sample_rate / n
+    if not (0 < f_min < f_max < sample_rate / 2):
+        raise PlanError(
+            f"multisine: need 0 < f_min < f_max < Nyquist ({sample_rate / 2:g} Hz), got {f_min:g} and {f_max:g} Hz."
+        )
+    if num_tones < 1:
+        raise PlanError(f"multisine: num_tones must be at least 1, got {num_tones}.")
+    lo, hi = max(1, math.ceil(f_min / base)), math.floor(f_max / base)
+    if hi < lo:
+        raise PlanError(
+            f"multisine: no harmonic of the segment frequency {base:g} Hz lies in [{f_min:g}, {f_max:g}] Hz; "
+            "lengthen the segment or widen the band."
+        )
+    harmonics = np.unique(np.round(np.geomspace(lo, hi, num_tones)).astype(int))
+    count = harmonics.size
+    phases = -math.pi * np.arange(1, count + 1) * np.arange(count) / count
+    t = _times(n, sample_rate)
+    signal = np.sin(2 * math.pi * base * np.outer(t, harmonics) + phases).sum(axis=1)
+    return offset + amplitude * signal / np.max(np.abs(signal))
+
+
+#: Feedback taps of maximal-length Fibonacci LFSRs (x^order + ... + 1), orders 2..16.
+_MLS_TAPS: dict[int, tuple[int, ...]] = {
+    2: (2, 1), 3: (3, 2), 4: (4, 3), 5: (5, 3), 6: (6, 5), 7: (7, 6), 8: (8, 6, 5, 4),
+    9: (9, 5), 10: (10, 7), 11: (11, 9), 12: (12, 11, 10, 4), 13: (13, 12, 11, 8),
+    14: (14, 13, 12, 2), 15: (15, 14), 16: (16, 15, 13, 4),
+}
+
+
+def maximal_length_sequence(order: int, seed: int = 1) -> np.ndarray:
+    """One period (``2**order - 1`` bits) of a maximal-length sequence, values 0/1."""
+    if order not in _MLS_TAPS:
+        raise PlanError(f"prbs: order must be between 2 and 16, got {order}.")
+    state = seed % (2**order - 1) + 1  # any non-zero state
+    bits = np.empty(2**order - 1, dtype=np.int8)
+    for i in range(bits.size):
+        bits[i] = state & 1
+        feedback = 0
+        for tap in _MLS_TAPS[order]:
+            feedback ^= (state >> (order - tap)) & 1
+        state = (state >> 1) | (feedback << (order - 1))
+    return bits
+
+
+def prbs(
+    n: int,
+    sample_rate: float,
+    *,
+    amplitude: float,
+    order: int = 9,
+    bit_rate: float | None = None,
+    offset: float = 0.0,
+    seed: int = 1,
+) -> np.ndarray:
+    """Maximal-length PRBS switching between ``offset - amplitude`` and ``offset + amplitude`` (V).
+
+    Each bit lasts ``round(sample_rate / bit_rate)`` samples (one sample when
+    ``bit_rate`` is None); the sequence repeats after ``2**order - 1`` bits.
+    """
+    hold = 1 if bit_rate is None else int(round(sample_rate / bit_rate))
+    if hold < 1:
+        raise PlanError(f"prbs: bit_rate {bit_rate:g} Hz is above the sample rate {sample_rate:g} Hz.")
+    bits = maximal_length_sequence(order, seed)
+    levels = np.repeat(2.0 * bits - 1.0, hold)
+    return offset + amplitude * np.resize(levels, n)
+
+
+def samples(n: int, sample_rate: float, *, values) -> np.ndarray:
+    """A measured sequence (V), one value per sample, used as it is."""
+    arr = np.asarray(values, dtype=float)
+    if arr.shape != (n,):
+        raise PlanError(f"samples: got {arr.size} values for a segment of {n} samples; give one value per sample.")
+    return arr
+
+
+#: Waveform kinds by their name in plan files.
+GENERATORS = {"step": step, "chirp": chirp, "multisine": multisine, "prbs": prbs, "samples": samples}

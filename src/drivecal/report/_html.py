@@ -1,0 +1,257 @@
+"""The self-contained HTML report: one file, figures embedded as PNG data URIs.
+
+``write_html_report(result, path)`` takes only the saved-result JSON dict
+(one fit from ``record.build_result``, or a demo document with ``designs``),
+so a saved JSON renders the same page as the run that saved it. The page
+fetches nothing from the network and runs no script. Its only
+run-dependent part is the time stamp in ``<time id="generated">``; the
+figures are rendered deterministically (fixed size and dpi, no PNG metadata,
+fixed ``svg.hashsalt``).
+
+Layout per fit: verdict first, then the summary table, fit statistics, the
+figures, the plan, the prior and fixed parameters, and provenance (input
+hash, software versions).
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import html as _html
+import io
+import json
+import math
+import os
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..physics import UNITS
+from .._io import atomic_path
+
+#: Resolution of the embedded figures (dots per inch); fixed for byte-identical PNGs.
+FIG_DPI = 80
+
+CSS = """
+body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;margin:1.5em auto;max-width:1250px;color:#222;
+     padding:0 1em;line-height:1.4}
+h1{margin-bottom:.1em} .stamp{color:#666;font-size:.9em;margin-top:0}
+.verdict{border-left:8px solid;padding:.6em 1em;margin:.8em 0;font-size:1.15em;background:#f6f6f6}
+.verdict.calibrated{border-color:#2a9d3f} .verdict.partial{border-color:#e0a100}
+.verdict.mismatch,.verdict.failed{border-color:#c62828}
+.verdict b{font-size:1.15em} .verdict ul{margin:.3em 0 0 0;font-size:.85em}
+table{border-collapse:collapse;margin:.6em 0;font-size:.92em}
+th,td{border:1px solid #ccc;padding:.25em .6em;text-align:right} th{background:#eee}
+td.l,th.l{text-align:left} tr.no td{color:#999}
+figure{margin:1em 0} figure img{max-width:100%;height:auto;border:1px solid #ddd}
+figcaption{color:#555;font-size:.9em}
+section.fit{border-top:3px solid #444;margin-top:2em}
+code{font-size:.9em}
+"""
+
+
+def figure_data_uri(fig) -> str:
+    """PNG of a matplotlib figure as a ``data:`` URI; the figure is closed.
+
+    Deterministic: fixed dpi, tight bounding box, no ``Software`` metadata.
+    """
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    matplotlib.rcParams["svg.hashsalt"] = "drivecal"
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=FIG_DPI, bbox_inches="tight", metadata={"Software": None})
+    plt.close(fig)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _e(x: Any) -> str:
+    return _html.escape(str(x))
+
+
+def _fmt(x: Any, spec: str = ".6g") -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    return format(x, spec)
+
+
+def verdict_html(fit: Mapping[str, Any]) -> str:
+    """The verdict block of one fit: headline, then each finding."""
+    from ..diagnose import verdict
+
+    v = fit.get("verdict") or verdict(dict(fit))
+    items = "".join(f"<li>{_e(d)}</li>" for d in v["details"])
+    return (f'<div class="verdict {_e(v["status"])}" data-status="{_e(v["status"])}">'
+            f'Verdict: <b>{_e(v["headline"])}</b>{"<ul>" + items + "</ul>" if items else ""}</div>')
+
+
+def summary_html(fit: Mapping[str, Any]) -> str:
+    """The summary table of one fit: estimate, SE, 95 % CI, relative CI, identifiable."""
+    rows = []
+    for name, p in fit["parameters"].items():
+        ok = p["identifiable"]
+        ci = p["ci95"] or [None, None]
+        est = p["estimate"]
+        rel = 50.0 * (ci[1] - ci[0]) / abs(est) if ok and None not in ci and est else None
+        ident = "yes" if ok else f"NO: {p.get('reason', 'not identifiable')} (held at prior)"
+        rows.append(
+            f'<tr class="{"yes" if ok else "no"}"><td class="l">{_e(name)}</td><td class="l">{_e(p["unit"])}</td>'
+            f"<td>{_fmt(est)}</td><td>{_fmt(p['se'], '.3g')}</td><td>{_fmt(ci[0])}</td><td>{_fmt(ci[1])}</td>"
+            f'<td>{_fmt(rel, ".3g")}</td><td class="l">{_e(ident)}</td></tr>'
+        )
+    head = ("<tr><th class='l'>parameter</th><th class='l'>SI unit</th><th>estimate [SI unit]</th>"
+            "<th>SE [SI unit]</th><th>95 % CI low [SI unit]</th><th>95 % CI high [SI unit]</th>"
+            "<th>relative CI half-width [%]</th><th class='l'>identifiable</th></tr>")
+    return f'<table class="summary">{head}{"".join(rows)}</table>'
+
+
+def _kv_table(rows: list[tuple[str, Any]], cls: str = "kv") -> str:
+    body = "".join(f'<tr><th class="l">{_e(k)}</th><td class="l">{_e(v)}</td></tr>' for k, v in rows)
+    return f'<table class="{cls}">{body}</table>'
+
+
+def _statistics_html(fit: Mapping[str, Any]) -> str:
+    ident = fit["identifiability"]
+    res = fit.get("residuals") or {}
+    rows = [
+        ("fit", f"{fit.get('message', '')} after {fit['iterations']} Levenberg-Marquardt steps"),
+        ("samples m (i_d and i_q)", fit["num_residuals"]),
+        ("fitted parameters n", f"{len(fit['names'])} ({', '.join(fit['names'])})"),
+        ("degrees of freedom m - n", fit.get("dof", "")),
+        ("sigma_hat [A]", _fmt(fit["sigma_hat"])),
+        ("stated sensor noise [A]", _fmt(res.get("sigma_stated"))),
+        ("RSS [A^2]", _fmt(fit.get("rss"))),
+        ("identifiability", f"rank {ident['rank']}/{ident.get('num_params', len(fit['parameters']))}, "
+                            f"condition number {_fmt(ident['condition_number'], '.3g')}"),
+        ("residuals white (Ljung-Box)", "-" if not res else
+         f"{'yes' if res['white'] else 'NO'} (each p >= {res['whiteness_p_threshold']:.2g} required)"),
+    ]
+    return _kv_table(rows, "stats")
+
+
+def _plan_html(plan: Mapping[str, Any] | None) -> str:
+    if not plan:
+        return "<p>No plan recorded (data from a bench file without a plan).</p>"
+
+    def volts(v):
+        if isinstance(v, list):
+            return f"sequence of {len(v)} values in [{min(v):.4g}, {max(v):.4g}]"
+        return f"{v:.6g}"
+
+    rows = "".join(
+        f'<tr><td class="l">{_e(s["name"])}</td><td>{s["duration"]:.6g}</td><td class="l">'
+        f'{"locked" if s["locked"] else "free"}</td><td class="l">{_e(volts(s["v_d"]))}</td>'
+        f'<td class="l">{_e(volts(s["v_q"]))}</td></tr>' for s in plan["segments"]
+    )
+    head = ("<tr><th class='l'>segment</th><th>duration [s]</th><th class='l'>rotor</th>"
+            "<th class='l'>v_d [V]</th><th class='l'>v_q [V]</th></tr>")
+    return (f"<p>sample rate {plan['sample_rate']:.6g} Hz, V_dc {plan['v_dc']:.6g} V, current limit "
+            f"{plan['current_limit']:.6g} A</p><table class='plan'>{head}{rows}</table>")
+
+
+def _figures(fit: Mapping[str, Any], label: str) -> list[tuple[str, str]]:
+    """(caption, data URI) of every figure of one fit, rendered from the JSON alone."""
+    from . import plots
+    from ..fitting import Calibration
+
+    cal = Calibration.from_dict(dict(fit))
+    out = []
+    segments = fit.get("segments")
+    if segments:
+        out.append(("Excitation (top) and currents: measured (dots) and predicted by the fit (lines), per segment.",
+                    figure_data_uri(plots.currents_figure(segments, title=label))))
+        out.append(("Residuals per segment and axis; dashed: +-1.96 sigma_hat.",
+                    figure_data_uri(plots.residuals_figure(segments, sigma_hat=fit["sigma_hat"]))))
+    if cal.history is not None:
+        out.append(("Convergence: each fitted parameter per accepted LM step, divided by its final value.",
+                    figure_data_uri(plots.convergence_figure(cal))))
+    truth = fit.get("truth")
+    true_vec = np.array([truth[n]["true"] for n in cal.names]) if truth else None
+    out.append((f"Estimates with 95 % intervals, as deviation from the {'truth' if truth else 'estimate'}.",
+                figure_data_uri(plots.estimates_figure(cal, truth=true_vec))))
+    out.append(("Identifiability before fitting: singular-value spectrum and per-parameter sensitivity "
+                "(dead parameters marked).",
+                figure_data_uri(plots.identifiability_figure({label: cal.identifiability}))))
+    if len(cal.fit_names) >= 2:
+        out.append(("Correlation of the fitted parameters.", figure_data_uri(plots.correlation_figure(cal))))
+    return out
+
+
+def fit_section_html(fit: Mapping[str, Any], label: str, anchor: str) -> str:
+    """One fit's section: verdict first, then table, statistics, figures, plan, prior, provenance."""
+    figs = "".join(
+        f'<figure><img alt="{_e(cap)}" src="{uri}"><figcaption>{_e(cap)}</figcaption></figure>'
+        for cap, uri in _figures(fit, label)
+    )
+    prior = fit.get("prior") or {n: p.get("prior") for n, p in fit["parameters"].items()}
+    prior_rows = [(f"{n} [{UNITS.get(n, 'N*m' if n == 'T_load' else '-')}]", _fmt(v)) for n, v in prior.items()]
+    fixed_rows = [(f"{n} [{UNITS.get(n, '-')}]", _fmt(v)) for n, v in fit.get("fixed", {}).items()]
+    inp = fit.get("input") or {}
+    versions = fit.get("versions") or {}
+    prov = [("input SHA-256", inp.get("sha256", "-")), ("hashed", inp.get("what", "-")),
+            ("input file", inp.get("path") or "-"), ("data source", fit.get("source", "-"))]
+    prov += [(f"{k} version", v) for k, v in versions.items()]
+    return (
+        f'<section class="fit" id="{_e(anchor)}"><h2>{_e(label)}</h2>'
+        f"{verdict_html(fit)}"
+        f"<h3>Summary</h3>{summary_html(fit)}"
+        f"<h3>Fit statistics</h3>{_statistics_html(fit)}"
+        f"<h3>Figures</h3>{figs}"
+        f"<h3>Plan</h3>{_plan_html(fit.get('plan'))}"
+        f"<h3>Prior (datasheet values, start of the fit)</h3>"
+        f"<p>motor file: <code>{_e(fit.get('motor_file') or 'none (built-in values)')}</code></p>"
+        f"{_kv_table(prior_rows, 'prior')}"
+        f"<h3>Fixed parameters (not estimated)</h3>{_kv_table(fixed_rows, 'fixed')}"
+        f"<h3>Provenance</h3>{_kv_table(prov, 'provenance')}</section>"
+    )
+
+
+def render_html(result: Mapping[str, Any], *, generated: str | None = None) -> str:
+    """The whole page as a string.
+
+    Args:
+        result: one fit's result JSON, or a demo document with ``designs``.
+        generated: the time stamp to print (default: now, UTC, ISO 8601).
+    """
+    from ._record import result_fits
+
+    # Render from exactly what a saved file holds (tuples become lists, numpy
+    # scalars plain floats): a fresh result and its saved JSON give one page.
+    result = json.loads(json.dumps(result, allow_nan=False))
+    stamp = generated or _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
+    fits = result_fits(dict(result))
+    multi = len(fits) > 1
+    overview = ""
+    if multi:
+        items = "".join(
+            f'<li><a href="#fit-{_e(k)}">{_e(k)}</a>: <b>{_e((f.get("verdict") or {}).get("headline", ""))}</b></li>'
+            for k, f in fits.items()
+        )
+        overview = f"<h2>Verdicts</h2><ul class='overview'>{items}</ul>"
+    sections = "".join(fit_section_html(f, k, f"fit-{k}") for k, f in fits.items())
+    extra = ""
+    if "noise_sigma" in result and "seed" in result:
+        extra = (f"<p>Synthetic bench on the Jaxonomy engine: sensor noise {result['noise_sigma']:g} A, "
+                 f"seed {result['seed']}.</p>")
+    return (
+        "<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'>"
+        "<meta name='viewport' content='width=device-width, initial-scale=1'>"
+        f"<title>drivecal calibration report</title><style>{CSS}</style></head><body>"
+        "<h1>drivecal calibration report</h1>"
+        f'<p class="stamp">generated <time id="generated">{_e(stamp)}</time></p>'
+        f"{overview}{extra}{sections}</body></html>\n"
+    )
+
+
+def write_html_report(result: Mapping[str, Any], path: str | os.PathLike, *, generated: str | None = None) -> None:
+    """Write the self-contained HTML report of a saved result dict to ``path``, atomically.
+
+    Args:
+        result: the result JSON as a dict (``json.load`` of a saved file, or
+            ``record.build_result(...)`` passed through JSON).
+        path: the ``.html`` file to write.
+        generated: time stamp to print (default: now).
+    """
+    page = render_html(result, generated=generated)
+    with atomic_path(path) as tmp:
+        tmp.write_text(page, encoding="utf-8")

@@ -1,0 +1,66 @@
+"""How a calibration ended: the one status vocabulary of drivecal.
+
+The verdict, the result JSON, the CLI's exit status and the fleet table all
+speak it. Each status has a key (the result JSON's ``verdict.status``), a label
+(the fleet table's ``status`` column and the headline), an actionable message
+and the exit status a command reports for it.
+"""
+
+from __future__ import annotations
+
+import enum
+
+
+class Status(enum.Enum):
+    """How one motor's calibration ended, most serious last.
+
+    ``Status("partial")`` looks a status up by its key; :meth:`from_label` by its label.
+    """
+
+    #: Every requested parameter fitted, the residuals are what the sensor noise explains.
+    CALIBRATED = ("calibrated", "calibrated", 0,
+                  "every requested parameter is calibrated; the intervals are honest at their nominal rate")
+    #: The fit converged but the plan could not identify some parameters.
+    PARTIAL = ("partial", "partially calibrated", 3,
+               "some parameters are not identifiable by this plan: they are held at the prior and not calibrated; "
+               "add the segment the identifiability report names (e.g. a free spin-up for lambda_m) and run again")
+    #: The model does not explain the data to the noise level.
+    MISMATCH = ("mismatch", "model mismatch", 4,
+                "the model does not explain the data to the noise level: the intervals are not to be trusted; "
+                "model the cause the verdict names (delay, dead time, offsets) and fit again")
+    #: The solver did not converge.
+    NOT_CONVERGED = ("failed", "not converged", 5,
+                     "the fit did not converge: check the prior (motor file) against the datasheet and the data "
+                     "against the plan")
+    #: The input could not be read or failed a check.
+    INVALID = ("invalid", "invalid file", 2,
+               "the bench file was refused: the reason names the field and the fix")
+
+    def __new__(cls, key: str, label: str, exit_code: int, message: str):
+        obj = object.__new__(cls)
+        obj._value_ = key
+        obj.label = label
+        obj.exit_code = exit_code
+        obj.message = message
+        return obj
+
+    @property
+    def key(self) -> str:
+        """The result JSON's word for it (``verdict.status``)."""
+        return self.value
+
+    @property
+    def ok(self) -> bool:
+        """Whether its estimates are usable (calibrated, or partially: the identifiable ones)."""
+        return self in (Status.CALIBRATED, Status.PARTIAL)
+
+    @classmethod
+    def from_label(cls, label: str) -> Status:
+        """The status whose fleet-table label is ``label``."""
+        for status in cls:
+            if status.label == label:
+                return status
+        raise ValueError(f"{label!r} is not a drivecal status label")
+
+    def __str__(self) -> str:
+        return self.label

@@ -1,0 +1,111 @@
+"""Traced programs kept on disk (traced.py): the same numbers as the plain call, and safe fallbacks."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import drivecal as dc
+from drivecal.model import _lowered_cache as traced
+
+_DIRECTORY = traced.directory
+
+
+@pytest.fixture()
+def store(tmp_path, monkeypatch):
+    """An empty store of traced programs; ``_LOADED`` cleared as in a new process."""
+    monkeypatch.setattr(traced, "directory", lambda: tmp_path)
+    monkeypatch.setattr(traced, "_LOADED", {})
+    return tmp_path
+
+
+@jax.jit
+def _f(x, y, *, scale):
+    return {"a": jnp.sin(x) * scale + y[0], "b": (jnp.cumsum(y), None)}
+
+
+def test_kept_program_gives_the_plain_numbers_and_is_reused(store, monkeypatch):
+    x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
+    plain = _f(x, y, scale=2.5)
+    first = traced.call(_f, "f", x, y, scale=2.5)
+    assert len(list(store.glob("f-*.pkl"))) == 1
+    monkeypatch.setattr(traced, "_LOADED", {})  # a new process: loads the program, does not trace
+    monkeypatch.setattr(traced, "_export", lambda *a, **k: pytest.fail("traced again"))
+    again = traced.call(_f, "f", x, y, scale=2.5)
+    for out in (first, again):
+        np.testing.assert_array_equal(out["a"], plain["a"])
+        np.testing.assert_array_equal(out["b"][0], plain["b"][0])
+        assert out["b"][1] is None
+
+
+def test_key_separates_shapes_statics_and_dtypes(store):
+    x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
+    traced.call(_f, "f", x, y, scale=2.5)
+    traced.call(_f, "f", x, y, scale=3.0)
+    traced.call(_f, "f", x[:10], y, scale=2.5)
+    traced.call(_f, "f", x.astype(np.float32), y, scale=2.5)
+    assert len(list(store.glob("f-*.pkl"))) == 4
+
+
+def test_tracers_damaged_entries_and_cache_off_take_the_plain_call(store, monkeypatch):
+    x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
+    inside = jax.jit(lambda x: traced.call(_f, "f", x, y, scale=2.5)["a"])(x)
+    np.testing.assert_array_equal(inside, _f(x, y, scale=2.5)["a"])
+    assert not list(store.glob("*.pkl"))  # traced under jit: nothing kept
+    traced.call(_f, "f", x, y, scale=2.5)
+    (path,) = store.glob("f-*.pkl")
+    path.write_bytes(b"damaged")
+    monkeypatch.setattr(traced, "_LOADED", {})
+    np.testing.assert_array_equal(traced.call(_f, "f", x, y, scale=2.5)["a"], _f(x, y, scale=2.5)["a"])
+    # DRIVECAL_JAX_CACHE=0: no store, the plain call
+    monkeypatch.setenv("DRIVECAL_JAX_CACHE", "0")
+    assert _DIRECTORY() is None
+    monkeypatch.setattr(traced, "directory", _DIRECTORY)
+    monkeypatch.setattr(traced, "_export", lambda *a, **k: pytest.fail("exported with the cache off"))
+    np.testing.assert_array_equal(traced.call(_f, "f", x, y, scale=2.5)["a"], _f(x, y, scale=2.5)["a"])
+
+
+def test_sensitivity_jacobian_kept_equals_plain(store, truth, monkeypatch):
+    exp = dc.Experiment.from_plan(dc.locked_q_step_plan())
+    kept = np.asarray(dc.sensitivity_jacobian(truth, exp))
+    with monkeypatch.context() as m:
+        m.setattr(traced, "directory", lambda: None)  # no store: the plain jitted call
+        plain = np.asarray(dc.sensitivity_jacobian(truth, exp))
+    np.testing.assert_array_equal(kept, plain)
+    assert len(list(store.glob("sensitivity_jacobian-*.pkl"))) == 1
+
+
+def test_store_keeps_the_most_recently_used(store, monkeypatch):
+    monkeypatch.setattr(traced, "_MAX_ENTRIES", 2)
+    y = np.arange(4.0)
+    for n in (5, 6, 7):
+        traced.call(_f, "f", np.ones(n), y, scale=1.0)
+    assert len(list(store.glob("f-*.pkl"))) == 2
+
+
+def test_fingerprint_covers_every_source_file_of_the_package(tmp_path, monkeypatch):
+    """Every .py of every sub-package is in the key: an edit anywhere changes it (stale programs never load)."""
+    import drivecal
+
+    package = Path(drivecal.__file__).resolve().parent
+    on_disk = sorted(package.rglob("*.py"))
+    assert traced.source_files() == on_disk
+    assert any(p.parent != package for p in on_disk)  # sub-packages are there, and read
+    # An edit in a sub-package changes the fingerprint.
+    copy = tmp_path / "drivecal"
+    shutil.copytree(package, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    monkeypatch.setattr(traced, "package_root", lambda: copy)
+    traced._fingerprint.cache_clear()
+    try:
+        before = traced._fingerprint()
+        deep = copy / "fitting" / "_fit.py"
+        deep.write_text(deep.read_text() + "\n# edited\n")
+        traced._fingerprint.cache_clear()
+        assert traced._fingerprint() != before
+    finally:
+        traced._fingerprint.cache_clear()
