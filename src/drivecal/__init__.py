@@ -24,7 +24,7 @@ from .errors import DataError, DrivecalError, PlanError
 # name -> the sub-package that defines it (loaded on first access).
 _API: dict[str, str] = {
     "BenchData": "data",
-    "Calibration": "fitting",
+    "Calibration": "results",
     "CurrentLoopDesign": "report",
     "DEFAULT_MOTOR": "physics",
     "DemoResult": "demo",
@@ -64,7 +64,7 @@ _API: dict[str, str] = {
     "load_bench": "data",
     "load_motor": "plan",
     "load_plan": "plan",
-    "load_result": "report",
+    "load_result": "results",
     "locked_q_step_plan": "plan",
     "motor_from_dict": "plan",
     "optimize_plan": "design",

@@ -25,7 +25,7 @@ MOVED: dict[str, tuple[str, ...]] = {
     "design": ("design._assess",),
     "distributions": ("_stats",),
     "export": ("bench._blocks",),
-    "fit": ("fitting._fit", "fitting._solver", "fitting._calibration", "results"),
+    "fit": ("fitting._fit", "fitting._options", "fitting._solver", "results._calibration"),
     "fleet_report": ("fleet._report",),
     "forward": ("model._rollout", "model._experiment", "physics._sensors"),
     "gains": ("report._gains",),
@@ -37,12 +37,12 @@ MOVED: dict[str, tuple[str, ...]] = {
     "motor": ("physics._motor",),
     "optimal": ("design._optimal",),
     "plots": ("report.plots", "fleet._report"),
-    "record": ("report._record", "results"),
+    "record": ("report._record", "results._record"),
     "report": ("_io", "plan._files"),
     "saturation": ("diagnose._saturation",),
     "stepbench": ("bench._step",),
     "traced": ("model._lowered_cache",),
-    "verdict": ("diagnose._verdict", "diagnose._whiteness", "results"),
+    "verdict": ("diagnose._verdict", "diagnose._whiteness"),
     "waveforms": ("plan._waveforms",),
 }
 

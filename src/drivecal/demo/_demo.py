@@ -19,10 +19,11 @@ import numpy as np
 
 from ..bench import engine_bench
 from ..data import BenchData
-from ..fitting import Calibration, fit
+from ..fitting import fit
+from ..results import Calibration, demo_document
 from ..physics import DEFAULT_MOTOR, MotorParams
 from ..plan import Plan, default_plan, locked_q_step_plan
-from ..report import build_result, software_versions
+from ..report import build_result
 from .._io import prepare_output_dir, save_figure, write_json
 
 #: The datasheet guess the demo starts from, relative to the truth.
@@ -79,20 +80,11 @@ class DemoResult:
     poor: DesignRun
 
     def to_dict(self) -> dict[str, Any]:
-        from .._version import __version__
-
-        return {
-            "drivecal_version": __version__,
-            "noise_sigma": self.noise,
-            "seed": self.seed,
-            "truth": self.truth.as_dict(),
-            "initial": self.guess.as_dict(),
-            "designs": {
-                "default": self.default.to_dict(self.truth, self.noise),
-                "locked_q_step": self.poor.to_dict(self.truth, self.noise),
-            },
-            "versions": software_versions(),
-        }
+        """The demo's result JSON (``drivecal.results.demo_document``)."""
+        return demo_document(noise_sigma=self.noise, seed=self.seed, truth=self.truth.as_dict(),
+                             initial=self.guess.as_dict(),
+                             designs={"default": self.default.to_dict(self.truth, self.noise),
+                                      "locked_q_step": self.poor.to_dict(self.truth, self.noise)})
 
 
 def _run_design(label: str, plan: Plan, truth: MotorParams, guess: MotorParams, noise: float, seed: int) -> DesignRun:

@@ -1,7 +1,14 @@
-"""The fit: options, Levenberg-Marquardt solve (single, batched, tiled), start from the data, the Calibration result."""
+"""The fit: options, the Levenberg-Marquardt solve (single, batched, tiled) and its start from the data.
+
+Produces :class:`drivecal.results.Calibration` (re-exported here for the old import path).
+"""
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
-from ._fit import (Calibration, FitOptions, LINEARISED_TANGENTS_MAX_BATCH, SHARED_JACOBIAN_PROBE, SOLVE_TILE, fit, fit_currents, result_message)
-from ._initial import (SPAN, START_TILE, equation_error_start, start_from_data)
+from ..results import Calibration, result_message  # TODO(lead): importers move to drivecal.results
+from ._fit import fit, fit_currents
+from ._initial import SPAN, START_TILE, equation_error_start, start_from_data
+from ._options import FitOptions
+from ._solver import LINEARISED_TANGENTS_MAX_BATCH, SHARED_JACOBIAN_PROBE, SOLVE_TILE
 
-__all__ = ["Calibration", "FitOptions", "LINEARISED_TANGENTS_MAX_BATCH", "SHARED_JACOBIAN_PROBE", "SOLVE_TILE", "SPAN", "START_TILE", "equation_error_start", "fit", "fit_currents", "result_message", "start_from_data"]
+__all__ = ["Calibration", "FitOptions", "LINEARISED_TANGENTS_MAX_BATCH", "SHARED_JACOBIAN_PROBE", "SOLVE_TILE", "SPAN",
+           "START_TILE", "equation_error_start", "fit", "fit_currents", "start_from_data"]

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DrivecalError
-from ..fitting import Calibration
+from ..results import Calibration
 
 #: Highest bandwidth accepted, as a fraction of the controller's sample rate:
 #: beyond ~fs/10 the sample-and-delay phase lag (1.5 samples) eats the margin.

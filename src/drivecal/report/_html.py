@@ -17,16 +17,15 @@ from __future__ import annotations
 
 import base64
 import datetime as _dt
-import html as _html
 import io
 import json
-import math
 import os
 from typing import Any, Mapping
 
 import numpy as np
 
 from ..physics import UNITS
+from ..results import escape as _e, format_number as _fmt, summary_html
 from .._io import atomic_path
 
 #: Resolution of the embedded figures (dots per inch); fixed for byte-identical PNGs.
@@ -65,16 +64,6 @@ def figure_data_uri(fig) -> str:
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def _e(x: Any) -> str:
-    return _html.escape(str(x))
-
-
-def _fmt(x: Any, spec: str = ".6g") -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "-"
-    return format(x, spec)
-
-
 def verdict_html(fit: Mapping[str, Any]) -> str:
     """The verdict block of one fit: headline, then each finding."""
     from ..diagnose import verdict
@@ -83,26 +72,6 @@ def verdict_html(fit: Mapping[str, Any]) -> str:
     items = "".join(f"<li>{_e(d)}</li>" for d in v["details"])
     return (f'<div class="verdict {_e(v["status"])}" data-status="{_e(v["status"])}">'
             f'Verdict: <b>{_e(v["headline"])}</b>{"<ul>" + items + "</ul>" if items else ""}</div>')
-
-
-def summary_html(fit: Mapping[str, Any]) -> str:
-    """The summary table of one fit: estimate, SE, 95 % CI, relative CI, identifiable."""
-    rows = []
-    for name, p in fit["parameters"].items():
-        ok = p["identifiable"]
-        ci = p["ci95"] or [None, None]
-        est = p["estimate"]
-        rel = 50.0 * (ci[1] - ci[0]) / abs(est) if ok and None not in ci and est else None
-        ident = "yes" if ok else f"NO: {p.get('reason', 'not identifiable')} (held at prior)"
-        rows.append(
-            f'<tr class="{"yes" if ok else "no"}"><td class="l">{_e(name)}</td><td class="l">{_e(p["unit"])}</td>'
-            f"<td>{_fmt(est)}</td><td>{_fmt(p['se'], '.3g')}</td><td>{_fmt(ci[0])}</td><td>{_fmt(ci[1])}</td>"
-            f'<td>{_fmt(rel, ".3g")}</td><td class="l">{_e(ident)}</td></tr>'
-        )
-    head = ("<tr><th class='l'>parameter</th><th class='l'>SI unit</th><th>estimate [SI unit]</th>"
-            "<th>SE [SI unit]</th><th>95 % CI low [SI unit]</th><th>95 % CI high [SI unit]</th>"
-            "<th>relative CI half-width [%]</th><th class='l'>identifiable</th></tr>")
-    return f'<table class="summary">{head}{"".join(rows)}</table>'
 
 
 def _kv_table(rows: list[tuple[str, Any]], cls: str = "kv") -> str:
@@ -152,7 +121,7 @@ def _plan_html(plan: Mapping[str, Any] | None) -> str:
 def _figures(fit: Mapping[str, Any], label: str) -> list[tuple[str, str]]:
     """(caption, data URI) of every figure of one fit, rendered from the JSON alone."""
     from . import plots
-    from ..fitting import Calibration
+    from ..results import Calibration
 
     cal = Calibration.from_dict(dict(fit))
     out = []
@@ -213,7 +182,7 @@ def render_html(result: Mapping[str, Any], *, generated: str | None = None) -> s
         result: one fit's result JSON, or a demo document with ``designs``.
         generated: the time stamp to print (default: now, UTC, ISO 8601).
     """
-    from ._record import result_fits
+    from ..results import result_fits
 
     # Render from exactly what a saved file holds (tuples become lists, numpy
     # scalars plain floats): a fresh result and its saved JSON give one page.

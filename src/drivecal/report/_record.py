@@ -1,80 +1,25 @@
-"""The saved result: one fit's JSON with everything its report needs.
+"""A fit's result JSON filled in: the traces, the residual diagnostics and the verdict of one fit.
 
-``build_result`` extends ``Calibration.to_dict()`` (the DESIGN.md keys) with
-new sections, so a saved file alone reproduces the HTML report and the
-controller hand-off:
-
-* ``segments``: per bench segment, ``t`` (s), ``v_d``, ``v_q`` (V), measured
-  ``i_d``, ``i_q`` and predicted ``i_d_pred``, ``i_q_pred`` (A) at the estimate
-  (residuals are measured - predicted);
-* ``residuals``: residual diagnostics (see ``verdict.residual_checks``);
-* ``verdict``: ``{status, headline, details}``;
-* ``plan`` (or null), ``motor_file`` (path of the prior's TOML, or null);
-* ``input``: ``{sha256, what, path}``: the hash of the input file's bytes, or
-  for the synthetic bench of its bench-file CSV bytes;
-* ``versions``: drivecal, jax, jaxonomy, jaxterity, optimistix, numpy,
-  matplotlib, python.
+:func:`build_result` computes what a saved result needs beyond the fit itself
+(predicted currents per segment, residual checks, the unmodelled-effects
+tests, the verdict) and hands the parts to
+:func:`drivecal.results.result_document`, the one owner of the JSON's keys.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
-import platform
-from importlib import metadata
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..data import BenchData
-from ..errors import DrivecalError
-from ..fitting import Calibration
-from ..diagnose import unmodelled_effects
+from ..diagnose import residual_checks, unmodelled_effects, verdict
 from ..model import Experiment, model_experiment, predicted_currents
-from ..plan import Plan
-from ..plan import plan_to_dict
-from ..diagnose import residual_checks, verdict
+from ..plan import Plan, plan_to_dict
+from ..results import (NOT_RECORDED, Calibration, bench_sha256, file_sha256, result_document,
+                       segment_residuals)
 
-#: Packages whose versions a result records.
-VERSIONED = ("drivecal", "jax", "jaxonomy", "jaxterity", "optimistix", "numpy", "matplotlib")
-
-
-def software_versions() -> dict[str, str]:
-    """Installed versions of drivecal and the stack it computes with, plus Python's."""
-    out = {}
-    for name in VERSIONED:
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = "not installed"
-    out["python"] = platform.python_version()
-    return out
-
-
-def content_sha256(content: bytes) -> str:
-    """SHA-256 (hex) of a bench file's bytes already read: equal to :func:`file_sha256` of that file."""
-    return hashlib.sha256(content).hexdigest()
-
-
-def file_sha256(path: str | os.PathLike) -> str:
-    """SHA-256 (hex) of a file's bytes: the identity of a bench file."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def bench_sha256(bench: BenchData) -> str:
-    """SHA-256 (hex) of bench data as bench-file CSV bytes (``%.17g``: every float exact).
-
-    Used where there is no input file (the synthetic bench): the same data
-    always gives the same hash.
-    """
-    csv = bench.to_frame().to_csv(index=False, float_format="%.17g", lineterminator="\n")
-    return hashlib.sha256(csv.encode()).hexdigest()
 
 
 def segment_traces(calibration: Calibration, bench: BenchData, experiment: Experiment | None = None
@@ -109,12 +54,6 @@ def segment_traces(calibration: Calibration, bench: BenchData, experiment: Exper
     return out
 
 
-def segment_residuals(segments: list[dict[str, Any]]) -> list[tuple[str, np.ndarray]]:
-    """``(name, measured - predicted)`` per segment, shape (N, 2) A, from the ``segments`` section."""
-    return [(s["name"], np.stack([np.asarray(s["i_d"]) - np.asarray(s["i_d_pred"]),
-                                  np.asarray(s["i_q"]) - np.asarray(s["i_q_pred"])], axis=1)) for s in segments]
-
-
 def build_result(
     calibration: Calibration,
     bench: BenchData,
@@ -125,6 +64,8 @@ def build_result(
     input_path: str | os.PathLike | None = None,
     input_sha256: str | None = None,
     motor_file: str | os.PathLike | None = None,
+    measured_speed: Any = NOT_RECORDED,
+    saturation: Any = NOT_RECORDED,
 ) -> dict[str, Any]:
     """The full result JSON of one fit (a plain, JSON-ready dict).
 
@@ -139,69 +80,24 @@ def build_result(
         input_path: the bench file; its bytes are hashed unless ``input_sha256`` is given.
         input_sha256: hash of the input; default the file's, or the bench data's.
         motor_file: path of the motor TOML the prior came from.
+        measured_speed: whether a measured speed drove the model (``drivecal fit`` records it).
+        saturation: the saturation check's dict, or None (``drivecal fit`` records it).
     """
-    doc = calibration.to_dict()
     segments = segment_traces(calibration, bench, experiment)
     stated = float(noise_sigma) if noise_sigma is not None else None
-    doc["segments"] = segments
-    doc["residuals"] = residual_checks(segment_residuals(segments), float(calibration.sigma_hat), stated)
+    residuals = residual_checks(segment_residuals(segments), float(calibration.sigma_hat), stated)
     if bool(calibration.converged):
         used = bench.experiment(delay_samples=calibration.delay_samples) if experiment is None else experiment
-        doc["residuals"]["unmodelled_effects"] = unmodelled_effects(
+        residuals["unmodelled_effects"] = unmodelled_effects(
             calibration.motor, calibration.fit_names, used, bench.currents, float(calibration.sigma_hat),
             calibration.delay_samples, used.with_extra_delay(1),
             predicted=np.concatenate([np.stack([s["i_d_pred"], s["i_q_pred"]], axis=1) for s in segments]))
-    doc["verdict"] = verdict(doc)
-    doc["plan"] = plan_to_dict(plan) if plan is not None else None
-    doc["motor_file"] = None if motor_file is None else str(motor_file)
+    fit = calibration.to_dict()
     if input_sha256 is None:
         input_sha256 = file_sha256(input_path) if input_path is not None else bench_sha256(bench)
-    doc["input"] = {
-        "sha256": input_sha256,
-        "what": "bench file bytes" if input_path is not None else "bench data as bench-file CSV (%.17g)",
-        "path": None if input_path is None else str(input_path),
-    }
-    doc["versions"] = software_versions()
-    return doc
-
-
-def load_result(path: str | os.PathLike) -> dict[str, Any]:
-    """Read a saved drivecal result JSON (one fit, or a demo with ``designs``).
-
-    Raises:
-        DrivecalError: missing file, not JSON, or not a drivecal result (one sentence, with the fix).
-    """
-    p = Path(path)
-    hint = "give a result JSON written by `drivecal fit` or `drivecal demo --out DIR` (DIR/report.json)"
-    if not p.is_file():
-        raise DrivecalError(f"{p}: no such file; {hint}.")
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise DrivecalError(f"{p}: not a text file, so not a result JSON; {hint}.")
-    except json.JSONDecodeError as exc:
-        raise DrivecalError(f"{p}: not valid JSON (line {exc.lineno}: {exc.msg}); {hint}.")
-    fits = list(doc["designs"].values()) if isinstance(doc, dict) and isinstance(doc.get("designs"), dict) else [doc]
-    required = ("parameters", "names", "covariance", "sigma_hat", "converged", "identifiability", "num_residuals")
-    for fit_doc in fits:
-        missing = [k for k in required if not isinstance(fit_doc, dict) or k not in fit_doc]
-        if missing:
-            raise DrivecalError(f"{p}: not a drivecal result (no '{missing[0]}' field); {hint}.")
-    return doc
-
-
-def result_fits(doc: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """The single-fit results in a document: ``{design: result}`` (``{"fit": doc}`` for one fit)."""
-    if isinstance(doc.get("designs"), dict):
-        return dict(doc["designs"])
-    return {"fit": doc}
-
-
-def select_fit(doc: dict[str, Any], design: str | None, source: str = "result") -> tuple[str, dict[str, Any]]:
-    """One fit out of a document: ``design`` by name, or the first one."""
-    fits = result_fits(doc)
-    if design is None:
-        return next(iter(fits.items()))
-    if design not in fits:
-        raise DrivecalError(f"{source}: no design '{design}'; choose one of: {', '.join(fits)}.")
-    return design, fits[design]
+    # The verdict reads the fit and its residuals; the document is assembled (keys and order) in one place.
+    judged = verdict({**fit, "segments": segments, "residuals": residuals})
+    return result_document(fit, segments=segments, residuals=residuals, verdict=judged,
+                           plan=plan_to_dict(plan) if plan is not None else None, motor_file=motor_file,
+                           input_sha256=input_sha256, input_path=input_path, measured_speed=measured_speed,
+                           saturation=saturation)

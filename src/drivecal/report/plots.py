@@ -11,7 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..data import BenchData  # noqa: E402
-from ..fitting import Calibration  # noqa: E402
+from ..results import Calibration  # noqa: E402
 from ..identify import Identifiability  # noqa: E402
 from ..physics import UNITS  # noqa: E402
 

@@ -1,0 +1,16 @@
+"""The results of a calibration: the Calibration type, the result JSON (its one owner) and the status vocabulary.
+
+Reading, printing or saving a result needs nothing of the solver: this layer
+sits below :mod:`drivecal.fitting`, which produces Calibrations.
+"""
+
+from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
+from ._calibration import Calibration, result_message
+from ._html import escape, format_number, summary_html
+from ._record import (NOT_RECORDED, VERSIONED, bench_sha256, content_sha256, demo_document, file_sha256, load_result,
+                      result_document, result_fits, segment_residuals, select_fit, software_versions)
+from ._status import Status
+
+__all__ = ["NOT_RECORDED", "VERSIONED", "Calibration", "Status", "bench_sha256", "content_sha256", "demo_document",
+           "escape", "file_sha256", "format_number", "load_result", "result_document", "result_fits",
+           "result_message", "segment_residuals", "select_fit", "software_versions", "summary_html"]

@@ -1,0 +1,349 @@
+"""The Calibration: a fitted motor, its uncertainty and how the fit ended (the result type; no solver in here).
+
+Reading, printing or saving a result needs only this module: the solver lives
+in :mod:`drivecal.fitting`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from .._stats import t_ppf
+from ..identify import Identifiability
+from ..physics import ADDITIVE_SCALE, FIXED, NUISANCE, UNITS, MotorParams
+
+
+def result_message(code: int, converged: bool) -> str:
+    if converged:
+        return "converged"
+    message = optx.RESULTS._index_to_message[int(code)]
+    return message or "the covariance is not finite: the data does not constrain the fitted parameters"
+
+
+@dataclasses.dataclass(frozen=True)
+class Calibration:
+    """A fitted motor: estimates, uncertainty and how the fit ended.
+
+    Array fields may carry a leading batch axis (a batch of fits is the same
+    object; index it to get one). Parameters the experiment cannot identify
+    keep their prior value, have ``identifiable`` False and NaN uncertainty.
+
+    Attributes:
+        names: estimated parameter names (R, Ld, Lq, lambda_m by default).
+        estimate: (..., len(names)) estimates, SI units.
+        se: (..., len(names)) standard errors, NaN where not identifiable.
+        ci95: (..., len(names), 2) Student-t 95 % intervals [low, high].
+        identifiable: per name, whether it was fitted.
+        fit_names: the fitted names: the axes of ``covariance``.
+        covariance: (..., n, n) covariance of the fitted names, SI units.
+        sigma_hat: (...,) residual standard deviation (A).
+        rss: (...,) residual sum of squares (A^2).
+        iterations: (...,) LM steps taken.
+        converged: (...,) whether the solve ended successfully.
+        result_code: (...,) optimistix result index (0 = successful).
+        initial: (..., len(names)) starting point of the search.
+        prior: the nominal motor (also holds the fixed parameters).
+        identifiability: the pre-fit identifiability verdict.
+        num_residuals: m, current samples fitted (i_d and i_q).
+        t_factor: Student-t 97.5 % quantile with m - n degrees of freedom.
+        source: where the data came from.
+        history: (K, n) accepted LM iterates of ``fit_names`` (SI), the start
+            first and the estimate last; single fits only, else None.
+        delay_samples: the inverter delay (samples) the fit assumed.
+        residuals: (..., M, 2) model minus measured ``[i_d, i_q]`` (A) at the
+            solver's last linearisation (the estimate is at most a final
+            Gauss-Newton step of ``FitOptions.step_se`` SE from it), or None.
+    """
+
+    names: tuple[str, ...]
+    estimate: np.ndarray
+    se: np.ndarray
+    ci95: np.ndarray
+    identifiable: tuple[bool, ...]
+    fit_names: tuple[str, ...]
+    covariance: np.ndarray
+    sigma_hat: np.ndarray
+    rss: np.ndarray
+    iterations: np.ndarray
+    converged: np.ndarray
+    result_code: np.ndarray
+    initial: np.ndarray
+    prior: MotorParams
+    identifiability: Identifiability
+    num_residuals: int
+    t_factor: float
+    source: str = "synthetic bench"
+    history: np.ndarray | None = None
+    delay_samples: int = 0
+    residuals: np.ndarray | None = None
+
+    # --- batch handling --------------------------------------------------
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        """() for one fit, (B,) for a batch."""
+        return tuple(self.sigma_hat.shape)
+
+    def __len__(self) -> int:
+        if not self.batch_shape:
+            raise TypeError("a single Calibration has no len(); it is not a batch")
+        return self.batch_shape[0]
+
+    def __getitem__(self, i: int) -> Calibration:
+        """The i-th fit of a batch."""
+        if not self.batch_shape:
+            raise TypeError("a single Calibration cannot be indexed; it is not a batch")
+        fields = ("estimate", "se", "ci95", "covariance", "sigma_hat", "rss", "iterations", "converged",
+                  "result_code", "initial") + (("residuals",) if self.residuals is not None else ())
+        return dataclasses.replace(self, **{f: getattr(self, f)[i] for f in fields})
+
+    # --- convenient views ------------------------------------------------
+
+    @property
+    def motor(self) -> MotorParams:
+        """The calibrated motor: estimates, with the fixed parameters of the prior."""
+        return self.prior.with_vector(self.names, jnp.asarray(self.estimate))
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """(..., n, n) correlation matrix of the fitted names."""
+        sd = np.sqrt(np.diagonal(self.covariance, axis1=-2, axis2=-1))
+        return self.covariance / (sd[..., :, None] * sd[..., None, :])
+
+    @property
+    def dof(self) -> int:
+        """Residual degrees of freedom m - n."""
+        return self.num_residuals - len(self.fit_names)
+
+    @property
+    def message(self) -> str:
+        """How the fit ended, in words (single fits)."""
+        return result_message(int(self.result_code), bool(self.converged))
+
+    @property
+    def fixed(self) -> dict[str, float]:
+        """Parameters held fixed: the mechanical ones, and unidentifiable ones at their prior."""
+        out = {n: float(getattr(self.prior, n)) for n in FIXED}
+        # Bench effects the user set but did not ask to estimate are assumptions too.
+        out.update({n: float(getattr(self.prior, n)) for n in NUISANCE
+                    if n not in self.names and n in ADDITIVE_SCALE and float(getattr(self.prior, n)) != 0.0})
+        for n, ok in zip(self.names, self.identifiable):
+            if not ok:
+                out[n] = float(getattr(self.prior, n))
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        """The result JSON of a single fit (SI units; null where undefined).
+
+        Carries everything :meth:`from_dict` needs to rebuild this object:
+        the full covariance with its names, the prior motor, the LM history.
+        """
+        if self.batch_shape:
+            raise TypeError("to_dict() is for one fit; index the batch first")
+
+        def num(x):
+            x = float(x)
+            return x if math.isfinite(x) else None
+
+        params = {}
+        for i, n in enumerate(self.names):
+            ok = self.identifiable[i]
+            params[n] = {
+                "estimate": num(self.estimate[i]),
+                "se": num(self.se[i]) if ok else None,
+                "ci95": [num(self.ci95[i, 0]), num(self.ci95[i, 1])] if ok else None,
+                "unit": UNITS[n],
+                "identifiable": bool(ok),
+                "initial": num(self.initial[i]),
+                "prior": num(getattr(self.prior, n)),
+            }
+            if not ok:
+                params[n]["reason"] = self.identifiability.reasons.get(n, "not identifiable")
+        history = None
+        if self.history is not None:
+            history = {"names": list(self.fit_names), "values": [[num(v) for v in row] for row in self.history]}
+        return {
+            "parameters": params,
+            "names": list(self.fit_names),
+            "covariance": [[num(c) for c in row] for row in self.covariance],
+            "correlation": [[num(c) for c in row] for row in self.correlation],
+            "sigma_hat": num(self.sigma_hat),
+            "rss": num(self.rss),
+            "converged": bool(self.converged),
+            "message": self.message,
+            "result_code": int(self.result_code),
+            "iterations": int(self.iterations),
+            "num_residuals": self.num_residuals,
+            "dof": self.dof,
+            "t_factor": self.t_factor,
+            "identifiability": self.identifiability.to_dict(),
+            "fixed": self.fixed,
+            "prior": self.prior.all_values(),
+            "history": history,
+            "source": self.source,
+            "delay_samples": self.delay_samples,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Calibration:
+        """Rebuild a single fit from :meth:`to_dict` output (e.g. a saved result JSON).
+
+        ``null`` becomes NaN. Results saved before the ``prior`` section existed
+        get their prior from ``parameters.<name>.prior`` and ``fixed``.
+        """
+        def arr(x):
+            return np.array([[np.nan if v is None else float(v) for v in row] for row in x], dtype=float)
+
+        def num(x):
+            return np.nan if x is None else float(x)
+
+        params = d["parameters"]
+        names = tuple(params)
+        fit_names = tuple(d["names"])
+        ci = [params[n]["ci95"] or [None, None] for n in names]
+        if "prior" in d:
+            prior = MotorParams(**{k: float(v) for k, v in d["prior"].items()})
+        else:
+            prior = MotorParams(**{**{n: params[n]["prior"] for n in names},
+                                   **{n: d["fixed"][n] for n in FIXED if n in d["fixed"]}})
+        hist = d.get("history")
+        m = int(d["num_residuals"])
+        return cls(
+            names=names,
+            estimate=np.array([num(params[n]["estimate"]) for n in names]),
+            se=np.array([num(params[n]["se"]) for n in names]),
+            ci95=arr(ci),
+            identifiable=tuple(bool(params[n]["identifiable"]) for n in names),
+            fit_names=fit_names,
+            covariance=arr(d["covariance"]) if fit_names else np.zeros((0, 0)),
+            sigma_hat=np.float64(num(d["sigma_hat"])),
+            rss=np.float64(num(d.get("rss"))),
+            iterations=np.int64(d["iterations"]),
+            converged=np.bool_(d["converged"]),
+            result_code=np.int64(d.get("result_code", 0 if d["converged"] else -1)),
+            initial=np.array([num(params[n].get("initial", params[n]["estimate"])) for n in names]),
+            prior=prior,
+            identifiability=Identifiability.from_dict(d["identifiability"]),
+            num_residuals=m,
+            t_factor=float(d.get("t_factor") or t_ppf(0.975, m - len(fit_names))),
+            source=d.get("source", "synthetic bench"),
+            history=None if hist is None else arr(hist["values"]),
+            delay_samples=int(d.get("delay_samples", 0)),
+        )
+
+    def to_pandas(self):
+        """One row per parameter: estimate, SE, 95 % CI, relative CI half-width (%), identifiable.
+
+        Values in SI units, named in the ``unit`` column; index ``parameter``.
+        """
+        import pandas as pd
+
+        if self.batch_shape:
+            raise TypeError("to_pandas() is for one fit; index the batch first")
+        half = self.t_factor * self.se
+        return pd.DataFrame(
+            {
+                "unit": [UNITS[n] for n in self.names],
+                "estimate": self.estimate,
+                "se": self.se,
+                "ci95_low": self.ci95[:, 0],
+                "ci95_high": self.ci95[:, 1],
+                "rel_ci95_percent": 100.0 * half / np.abs(self.estimate),
+                "identifiable": list(self.identifiable),
+                "prior": [float(getattr(self.prior, n)) for n in self.names],
+                "initial": self.initial,
+                "reason": [self.identifiability.reasons.get(n, "") for n in self.names],
+            },
+            index=pd.Index(self.names, name="parameter"),
+        )
+
+    def to_jaxonomy(self, *, locked: bool = False, initial_state: Any = None, name: str = "pmsm"):
+        """A ``jaxonomy.library.drives.PMSM`` block configured with this calibration.
+
+        Estimates for the identifiable parameters, the prior for the rest and
+        for the fixed ones (pole_pairs, J, B, T_load).
+
+        Args:
+            locked: clamp the rotor (standstill bench), fixed when the block is built.
+            initial_state: ``[i_d, i_q, w_m, theta_m]`` (A, A, rad/s, rad); default rest.
+            name: block name in the diagram.
+        """
+        from ..bench import pmsm_block
+
+        if self.batch_shape:
+            raise TypeError("to_jaxonomy() is for one fit; index the batch first")
+        return pmsm_block(self.motor, locked=locked, initial_state=initial_state, name=name)
+
+    def warnings(self) -> list[str]:
+        """Plain-language warnings: non-identifiable parameters, failed fit, strong correlations."""
+        out = []
+        if not bool(self.converged):
+            out.append(f"the fit did not converge: {self.message}")
+        for i, n in enumerate(self.names):
+            if not self.identifiable[i]:
+                why = self.identifiability.reasons.get(n, "not identifiable")
+                out.append(f"{n} is not identifiable ({why}); held at its prior {self.estimate[i]:.6g} {UNITS[n]}, "
+                           "not calibrated")
+        for a, b, r in self.correlations(threshold=0.9):
+            out.append(f"{a} and {b} are strongly correlated (r = {r:+.3f}): the data mostly fixes a combination")
+        return out
+
+    def correlations(self, threshold: float = 0.1) -> list[tuple[str, str, float]]:
+        """Pairs of fitted parameters with ``|r| > threshold``, largest first."""
+        corr = self.correlation
+        pairs = [(self.fit_names[i], self.fit_names[j], float(corr[i, j]))
+                 for i in range(len(self.fit_names)) for j in range(i + 1, len(self.fit_names))]
+        return sorted([p for p in pairs if abs(p[2]) > threshold], key=lambda p: -abs(p[2]))
+
+    def __str__(self) -> str:
+        """An lmfit-style report: fit statistics, parameters, correlations, warnings."""
+        if self.batch_shape:
+            n_ok = int(np.sum(self.converged))
+            return f"Calibration batch of {len(self)} fits, {n_ok} converged"
+        ident = self.identifiability
+        stat = [
+            ("source", self.source),
+            ("fit result", f"{self.message} after {int(self.iterations)} LM steps"),
+            ("# data points", f"{self.num_residuals} (i_d and i_q samples)"),
+            ("# variables", f"{len(self.fit_names)} ({', '.join(self.fit_names)})"),
+            ("degrees of freedom", f"{self.dof}"),
+            ("sigma_hat [A]", f"{float(self.sigma_hat):.6g}"),
+            ("RSS [A^2]", f"{float(self.rss):.6g}"),
+            ("identifiability", f"rank {ident.rank}/{len(ident.names)}, condition number {ident.condition_number:.3g}"),
+        ]
+        lines = ["[[Fit Statistics]]"] + [f"    {k:<19}= {v}" for k, v in stat]
+        lines += ["[[Parameters]]",
+                  f"    {'name':<9} {'unit':<4} {'estimate':>12} {'std err':>10} {'95% CI':>27} "
+                  f"{'rel. CI':>12}  identifiable"]
+        for i, n in enumerate(self.names):
+            if self.identifiable[i]:
+                ci = f"[{self.ci95[i, 0]:.6g}, {self.ci95[i, 1]:.6g}]"
+                rel = f"{100.0 * self.t_factor * self.se[i] / abs(self.estimate[i]):.3g} %"
+                lines.append(f"    {n:<9} {UNITS[n]:<4} {self.estimate[i]:>12.6g} {self.se[i]:>10.3g} {ci:>27} "
+                             f"{'+/-' + rel:>12}  yes")
+            else:
+                lines.append(f"    {n:<9} {UNITS[n]:<4} {self.estimate[i]:>12.6g} {'-':>10} {'held at prior':>27} "
+                             f"{'-':>12}  NO")
+        pairs = self.correlations(threshold=0.1)
+        lines.append("[[Correlations]] (unreported correlations are < 0.100)")
+        lines += [f"    C({a}, {b}){'':<{max(0, 16 - len(a) - len(b))}} = {r:+.4f}" for a, b, r in pairs] or [
+            "    none"]
+        warnings = self.warnings()
+        if warnings:
+            lines.append("[[Warnings]]")
+            lines += [f"    {w}" for w in warnings]
+        return "\n".join(lines)
+
+    def _repr_html_(self) -> str:
+        """Jupyter: the summary table of the HTML report."""
+        if self.batch_shape:
+            return f"<p>{str(self)}</p>"
+        from ._html import summary_html
+
+        return summary_html(self.to_dict())
