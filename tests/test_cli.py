@@ -129,3 +129,61 @@ def test_design_flags_current_limit_and_runaway(tmp_path, capsys):
 def test_every_command_has_help(command, capsys):
     assert main([command, "--help"]) == 0
     assert "Usage: drivecal " + command in capsys.readouterr().out
+
+
+# The group loads each command's module on first use (drivecal.cli._common.COMMANDS): the help lists
+# the commands from registered summaries, so the listing must read exactly as click's own would.
+_LAZY_HELP = """
+import sys
+import click
+from click.testing import CliRunner
+from drivecal.cli import cli
+
+def loaded():
+    return sorted(m for m in sys.modules if m.startswith("drivecal.cli._") and m != "drivecal.cli._common")
+
+widths = (40, 60, 80, 200)
+def help_text(group, width):
+    return CliRunner().invoke(group, ["--help"], terminal_width=width, prog_name="drivecal")
+
+before = {w: help_text(cli, w) for w in widths}
+assert all(r.exit_code == 0 for r in before.values())
+assert CliRunner().invoke(cli, ["--version"]).exit_code == 0
+print("after --help and --version:", loaded())
+r = CliRunner().invoke(cli, ["fit", "--help"], prog_name="drivecal")
+assert r.exit_code == 0 and "Usage: drivecal fit" in r.output, r.output
+print("after fit --help:", loaded())
+# Plain click with the loaded commands: the listing it prints is the reference.
+plain = click.Group("drivecal", help=cli.help, params=cli.params, context_settings=cli.context_settings,
+                    commands={n: cli.get_command(None, n) for n in cli.list_commands(None)})
+for w in widths:
+    assert before[w].output == help_text(plain, w).output == help_text(cli, w).output, w
+print("same listing")
+"""
+
+
+def test_help_and_version_load_no_command_module_and_list_each_commands_own_summary():
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _LAZY_HELP], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert lines == ["after --help and --version: []", "after fit --help: ['drivecal.cli._fit']", "same listing"]
+
+
+@pytest.mark.parametrize("command", ["batch", "demo", "design", "fit", "fleet-report", "gains", "plan", "report",
+                                     "simulate"])
+def test_every_command_is_listed_and_answers_its_help(command, capsys):
+    assert main(["--help"]) == 0
+    listing = capsys.readouterr().out.split("Commands:")[1]
+    assert f"\n  {command} " in listing
+    assert main([command, "-h"]) == 0
+    assert "Usage: drivecal " + command in capsys.readouterr().out
+
+
+def test_version(capsys):
+    from drivecal import __version__
+
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out == f"drivecal, version {__version__}\n"

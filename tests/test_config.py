@@ -74,3 +74,23 @@ def test_bad_motor_file_names_the_key():
         dc.motor_from_dict({"Ld": "3.2 mOhm"}, source="m.toml")
     with pytest.raises(dc.DrivecalError, match=r"'R' must be a positive number"):
         dc.motor_from_dict({"R": -1.0}, source="m.toml")
+
+
+def test_motor_files_are_read_by_data_and_units_shared_with_plans(tmp_path):
+    """Motor files belong to drivecal.data; plan and motor files parse units alike (drivecal.plan keeps read_toml)."""
+    import drivecal.data
+    import drivecal.plan
+
+    assert dc.MotorFile is drivecal.data.MotorFile
+    assert dc.load_motor is drivecal.data.load_motor and dc.motor_from_dict is drivecal.data.motor_from_dict
+    assert drivecal.data.MotorSpec.model_fields["R"].default == dc.DEFAULT_MOTOR.R
+    assert drivecal.plan.parse_quantity("3.2 mH", "inductance") == pytest.approx(3.2e-3)
+    path = tmp_path / "motor.toml"
+    path.write_text('Ld = "3.2 mH"\n')
+    assert drivecal.plan.read_toml(path) == {"Ld": "3.2 mH"}
+    assert dc.load_motor(path).motor.Ld == pytest.approx(3.2e-3)
+    for bad, expected in [("Ld = ", "not valid TOML"), (None, "no such file")]:
+        if bad is not None:
+            path.write_text(bad)
+        with pytest.raises(dc.DrivecalError, match=expected):
+            dc.load_motor(path if bad is not None else tmp_path / "none.toml")

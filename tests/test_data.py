@@ -220,16 +220,6 @@ def test_bad_motor_file_via_cli(tmp_path, capsys):
     assert_one_sentence(code, err, str(motor), "'Ld'", "inductance")
 
 
-@pytest.mark.parametrize("n", [4, 5, 1000, 1001])
-def test_partition_median_is_numpy_median(n):
-    from drivecal._stats import fast_median as _median
-
-    x = np.random.default_rng(n).normal(size=n)
-    assert _median(x) == np.median(x)
-    columns = np.random.default_rng(n + 1).normal(size=(n, 3))
-    np.testing.assert_array_equal(_median(columns), np.median(columns, axis=0))
-
-
 def test_columns_and_frame_give_the_same_bench(tmp_path):
     """The columnar path (what files are read into) checks and splits exactly as a DataFrame does."""
     frame = small_frame()
@@ -267,21 +257,6 @@ def test_fleet_whiteness_equals_the_single_fit_test():
         assert diag["resid_min_p"][b] == pytest.approx(min(p), rel=1e-9)
         assert diag["mismatch"][b] == (min(p) < WHITENESS_ALPHA / 4)
     assert diag["mismatch"][2]
-
-
-def test_ljung_box_equals_its_formula():
-    """Q = N(N+2) sum_k r_k^2 / (N-k), r_k the lag-k autocorrelation, computed plainly."""
-    from drivecal._stats import chi2_sf
-    from drivecal.diagnose import ljung_box
-
-    x = np.random.default_rng(4).standard_normal(257)
-    d = x - x.mean()
-    n, lags = x.size, 10
-    r = np.array([np.correlate(d[:-k], d[k:])[0] for k in range(1, lags + 1)]) / (d @ d)
-    q = n * (n + 2) * sum(r[k - 1] ** 2 / (n - k) for k in range(1, lags + 1))
-    q_lb, p_lb = ljung_box(x, lags)
-    assert q_lb == pytest.approx(q, rel=1e-12)
-    assert p_lb == pytest.approx(float(chi2_sf(q, lags)), rel=1e-12)
 
 
 def test_many_tables_checked_together_as_one_by_one(monkeypatch):
@@ -373,3 +348,44 @@ def test_parquet_text_columns_read_as_labels(tmp_path):
         np.testing.assert_array_equal(columns["i_d"], frame["i_d"].to_numpy())
     frame.drop(columns="serial").to_parquet(path, index=False)  # without the serial column
     assert read_table(path)["segment"].tolist() == [None if pd.isna(x) else x for x in frame["segment"]]
+
+
+def test_tables_with_temperature_and_angle_checked_together_as_one_by_one():
+    """Temperature and rotor-angle columns take the vectorised path too: the same benches, the same sentences."""
+    from drivecal.data import benches_from_frames
+
+    rng = np.random.default_rng(11)
+    good = small_frame().assign(temperature=lambda f: np.where(f["segment"] == "d", 40.0, np.nan),
+                                theta_e=lambda f: np.linspace(0.0, 3.0, len(f)))
+    frames = []
+    for k in range(8):
+        f = good.copy()
+        f[["i_d", "i_q"]] += 0.01 * rng.standard_normal((len(f), 2))
+        if k == 2:
+            f.loc[4, "temperature"] = np.nan  # blank inside a segment with a temperature
+        if k == 3:
+            f.loc[70, "locked"] = 1.0  # the free segment's flag changes mid-way
+        if k == 4:
+            f.loc[f["segment"] == "spin", "locked"] = 1  # locked throughout: a valid, different bench
+        if k == 5:
+            f.loc[7, "theta_e"] = np.inf
+        frames.append({c: f[c].to_numpy() for c in f.columns})
+    sources = [f"b{k}.csv" for k in range(len(frames))]
+    together = benches_from_frames(frames, sources, nominal_R=0.45)
+    for frame, source, result in zip(frames, sources, together):
+        try:
+            alone = dc.bench_from_frame(frame, source, nominal_R=0.45)
+        except dc.DataError as exc:
+            assert isinstance(result, dc.DataError) and str(result) == str(exc), source
+            continue
+        assert isinstance(result, dc.BenchData), (source, result)
+        for a, b in zip(result.segments, alone.segments):
+            assert (a.name, a.locked, a.at_rest) == (b.name, b.locked, b.at_rest)
+            for field in ("t", "voltages", "currents", "temperature", "theta_e"):
+                x, y = getattr(a, field), getattr(b, field)
+                assert (x is None) == (y is None), (source, field)
+                if x is not None:
+                    np.testing.assert_array_equal(x, y)
+    assert [isinstance(r, dc.DataError) for r in together] == [k in (2, 3, 5) for k in range(8)]
+    assert together[4].segments[1].locked and together[0].segments[1].temperature is None
+    assert "column 'temperature' is blank or not a number at sample 5" in str(together[2])

@@ -1,4 +1,7 @@
-"""Fleet calibration: planted outliers, corrupt files, kill-and-resume, a dask cluster."""
+"""Fleet calibration: planted outliers, corrupt files, kill-and-resume, the report's outlier band.
+
+Where the chunks run (local helpers, a dask cluster): test_runners.py; reading a chunk: test_batch.py.
+"""
 
 from __future__ import annotations
 
@@ -16,6 +19,7 @@ import pytest
 import drivecal as dc
 from drivecal import fleet
 from drivecal.cli import main
+from drivecal.results import Status
 
 MOTOR = dc.load_motor(None)
 DEMAGNETISED = {"lambda_m": 0.85}
@@ -119,60 +123,6 @@ def test_killed_run_resumes_without_losing_or_repeating_a_motor(tmp_path):
     assert (a["status"] == b["status"]).all()
 
 
-_WHERE_HELPERS_RUN = """
-import json, os, time
-from drivecal.fleet import _batch as fleet
-
-def where(chunk):
-    time.sleep(0.2)  # long enough that both helpers get chunks
-    return os.getpid(), sorted(os.sched_getaffinity(0))
-
-rows = dict(fleet._on_local_processes([[k] for k in range(8)], where, workers=2))
-print(json.dumps({"chunks": sorted(rows), "parent": os.getpid(), "helpers": list(rows.values())}))
-"""
-
-
-@pytest.mark.skipif(not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2,
-                    reason="needs a system that pins processes, and two cores")
-def test_local_helpers_each_run_on_a_core_of_their_own():
-    """Two helpers, forked from a fresh process: each pinned to one core, not the same one; the parent computes nothing."""
-    import json
-
-    done = subprocess.run([sys.executable, "-c", _WHERE_HELPERS_RUN], capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
-    seen = json.loads(done.stdout.strip().splitlines()[-1])
-    assert seen["chunks"] == list(range(8))
-    cores_of = {}
-    for pid, cores in seen["helpers"]:
-        assert cores_of.setdefault(pid, cores) == cores  # a helper stays where it was pinned
-    assert seen["parent"] not in cores_of and len(cores_of) == 2
-    first, second = cores_of.values()
-    assert len(first) == len(second) == 1 and first != second
-
-
-@pytest.mark.slow
-def test_dask_cluster_and_local_processes_give_the_same_table(tmp_path):
-    """A dask LocalCluster (--scheduler), and two local helpers, spawned (JAX runs here already)."""
-    from distributed import LocalCluster
-
-    fleet.synthetic_fleet(tmp_path / "in", 24, seed=4)
-    local = fleet.run_batch([tmp_path / "in"], tmp_path / "local.parquet", MOTOR, chunk=8, workers=1)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        remote = fleet.run_batch([tmp_path / "in"], tmp_path / "dask.parquet", MOTOR, chunk=8,
-                                 scheduler=cluster.scheduler_address)
-        with cluster.get_client() as client:  # the workers that ran chunks were tuned for batches
-            tuned = client.run(lambda: __import__("drivecal.fleet._batch", fromlist=["_tuned"])._tuned)
-        assert any(tuned.values())
-    helped = fleet.run_batch([tmp_path / "in"], tmp_path / "two.parquet", MOTOR, chunk=8, workers=2)
-    assert local.total == remote.total == helped.total == 24
-    a = pd.read_parquet(tmp_path / "local.parquet")
-    for other in ("dask.parquet", "two.parquet"):
-        b = pd.read_parquet(tmp_path / other)
-        assert a["serial"].tolist() == b["serial"].tolist()
-        for name in dc.ESTIMATED:
-            np.testing.assert_allclose(a[name], b[name], rtol=1e-10)
-
-
 def test_resume_after_parts_finished_out_of_order(tmp_path):
     """Chunks finish out of order, so a killed run can leave part 1 without part 0; resuming keeps it."""
     fleet.synthetic_fleet(tmp_path / "in", 8, seed=6)
@@ -212,39 +162,45 @@ def test_requested_parameters_are_checked_per_motor(tmp_path):
     summary = fleet.run_batch([tmp_path / "in"], tmp_path / "r.parquet", dc.load_motor(motor), chunk=4, workers=1)
     table = pd.read_parquet(tmp_path / "r.parquet").set_index("serial")
     assert summary.failed == 1 and summary.calibrated == 3
-    assert table.loc["SN000003", "status"] == fleet.STATUS_INVALID
+    assert table.loc["SN000003", "status"] == Status.INVALID.label == "invalid file"
     assert "lambda_m is requested" in table.loc["SN000003", "reason"]
 
 
-def test_a_chunk_asks_for_its_files_before_reading_them(tmp_path, monkeypatch):
-    """Each chunk's files are requested from the disk at once (posix_fadvise WILLNEED), before the first is read;
-    a file that cannot be opened is skipped there and reported by its read as before."""
-    if not hasattr(os, "posix_fadvise"):
-        pytest.skip("no posix_fadvise on this system")
-    fleet.synthetic_fleet(tmp_path / "in", 3, seed=8)
-    files = [str(p) for p in fleet.discover([tmp_path / "in"])]
-    missing = str(tmp_path / "in" / "gone.parquet")
-    events = []
-    from drivecal.fleet import _batch
+def test_the_report_band_is_drawn_at_the_runs_outlier_z(tmp_path):
+    """The histogram band is median ± the run's --outlier-z robust SDs, as the table records it (not the default);
+    a table written before the column existed is drawn at the default; a resumed run re-checks at its own z."""
+    import matplotlib.pyplot as plt
 
-    real_read_table = _batch.read_table
+    fleet.synthetic_fleet(tmp_path / "in", 8, seed=9)
+    out = tmp_path / "r.parquet"
+    fleet.run_batch([tmp_path / "in"], out, MOTOR, chunk=8, workers=1, outlier_z=3.0)
+    table = fleet.load_results(out)
+    assert (table["outlier_z"] == 3.0).all()
+    values = table["lambda_m"].astype(float)
+    centre = float(np.median(values))
+    scale = 1.4826 * float(np.median(np.abs(values - centre)))
+    for recorded, z in ((table, 3.0), (table.drop(columns="outlier_z"), fleet.DEFAULT_OUTLIER_Z)):
+        fig = fleet.fleet_histograms(recorded, ["lambda_m"])
+        ax = fig.axes[0]
+        band = [p for p in ax.patches if p.get_label().startswith("median ±")]
+        assert len(band) == 1
+        xs = band[0].get_path().transformed(band[0].get_patch_transform()).vertices[:, 0]
+        np.testing.assert_allclose([xs.min(), xs.max()], [centre - z * scale, centre + z * scale], rtol=1e-12)
+        assert f"median ± {z:g} robust SD" in [t.get_text() for t in ax.get_legend().get_texts()]
+        plt.close(fig)
 
-    def advise(fd, offset, length, advice):
-        events.append(("advise", os.readlink(f"/proc/self/fd/{fd}") if os.path.exists("/proc/self/fd") else fd,
-                       advice))
+    again = fleet.run_batch([tmp_path / "in"], out, MOTOR, chunk=8, workers=1, resume=True, outlier_z=4.0)
+    assert again.done_before == 8
+    rechecked = fleet.load_results(out)
+    assert (rechecked["outlier_z"] == 4.0).all()
+    flags = ["outlier", "outlier_params", "outlier_z"]
+    pd.testing.assert_frame_equal(rechecked.drop(columns=flags), table.drop(columns=flags))  # z-scores unchanged
+    z = rechecked[[f"z_{n}" for n in dc.ESTIMATED]].abs()
+    assert (rechecked["outlier"] == (z > 4.0).any(axis=1)).all() and (table["outlier"] == (z > 3.0).any(axis=1)).all()
 
-    def read_table(path, content=None):
-        events.append(("read", str(path), None))
-        return real_read_table(path, content)
 
-    monkeypatch.setattr(os, "posix_fadvise", advise)
-    monkeypatch.setattr(_batch, "read_table", read_table)
-    loaded = _batch._load(files + [missing], MOTOR)
-    advised = [e for e in events if e[0] == "advise"]
-    assert all(e[2] == os.POSIX_FADV_WILLNEED for e in advised)
-    if os.path.exists("/proc/self/fd"):
-        assert [e[1] for e in advised] == [os.path.realpath(f) for f in files]
-    assert len(advised) == len(files)
-    assert events.index(("read", files[0], None)) == len(files)  # every request before the first read
-    assert [item.bench is not None for item in loaded] == [True, True, True, False]
-    assert "No such file" in loaded[-1].reason
+def test_the_old_status_constants_are_the_status_labels():
+    """STATUS_* stay exported for one release, as the Status labels (the table's words)."""
+    assert (fleet.STATUS_CALIBRATED, fleet.STATUS_PARTIAL, fleet.STATUS_NOT_CONVERGED, fleet.STATUS_INVALID) == (
+        "calibrated", "partially calibrated", "not converged", "invalid file")
+    assert fleet.STATUS_PARTIAL == Status.PARTIAL.label and Status.from_label(fleet.STATUS_INVALID) is Status.INVALID

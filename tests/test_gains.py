@@ -11,7 +11,7 @@ from conftest import NOISE
 from drivecal.cli import main
 from drivecal.report import design_current_loop, loop_metrics, pi_gains
 from drivecal.report import build_result
-from drivecal._io import write_json
+
 
 BW = 1000.0  # Hz
 
@@ -24,7 +24,7 @@ def design(default_fit):
 @pytest.fixture(scope="module")
 def saved(default_fit, default_bench, tmp_path_factory):
     path = tmp_path_factory.mktemp("gains") / "result.json"
-    write_json(path, build_result(default_fit, default_bench, noise_sigma=NOISE))
+    path.write_text(json.dumps(build_result(default_fit, default_bench, noise_sigma=NOISE), indent=2))
     return path
 
 

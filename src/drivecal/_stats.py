@@ -1,9 +1,10 @@
-"""The two distribution functions drivecal needs, straight from ``scipy.special``.
+"""drivecal's statistics, each written once: two distribution functions, a fast median, robust z-scores
+and power-of-two batch sizes.
 
-``scipy.stats`` computes ``t.ppf`` and ``chi2.sf`` with these same special
-functions, but importing it loads most of SciPy (about a second per
-process). The results are bit for bit those of ``scipy.stats``
-(tests/test_report.py checks it).
+``t_ppf`` and ``chi2_sf`` come straight from ``scipy.special``: ``scipy.stats``
+computes ``t.ppf`` and ``chi2.sf`` with these same special functions, but
+importing it loads most of SciPy (about a second per process). The results
+are bit for bit those of ``scipy.stats`` (tests/test_stats.py checks it).
 """
 
 from __future__ import annotations
@@ -35,3 +36,38 @@ def fast_median(x: np.ndarray, axis: int = 0) -> Any:
     n = x.shape[axis]
     part = np.partition(x, [(n - 1) // 2, n // 2], axis=axis)
     return 0.5 * (np.take(part, (n - 1) // 2, axis=axis) + np.take(part, n // 2, axis=axis))
+
+
+#: Scale of the median absolute deviation to the standard deviation of a normal sample (1 / Phi^-1(3/4)).
+MAD_TO_SD = 1.4826
+
+
+def robust_centre_scale(values: Any) -> tuple[float, float]:
+    """The median of ``values`` and their robust SD ``1.4826 * MAD`` (NaN left out; both NaN if none is left).
+
+    A few outliers cannot hide themselves by inflating this spread, as they would a standard deviation.
+    """
+    x = np.asarray(values, dtype=float).ravel()
+    x = x[~np.isnan(x)]
+    if not x.size:
+        return float("nan"), float("nan")
+    centre = float(np.median(x))
+    return centre, MAD_TO_SD * float(np.median(np.abs(x - centre)))
+
+
+def robust_z(values: Any) -> tuple[np.ndarray, float, float]:
+    """Robust z-scores ``(x - median) / (1.4826 * MAD)`` of ``values``, with the centre and scale used.
+
+    NaN values stay NaN and are left out of the centre and scale. Where the MAD is 0 (most values
+    alike) the scale is a tiny fraction of the centre instead, so a value off the common one still
+    stands out, by far.
+    """
+    x = np.asarray(values, dtype=float)
+    centre, scale = robust_centre_scale(x)
+    scale = scale if scale > 0 else max(abs(centre) * 1e-12, 1e-300)
+    return (x - centre) / scale, centre, scale
+
+
+def next_power_of_two(n: int, minimum: int = 1) -> int:
+    """The smallest power of two at or above ``n`` and ``minimum``: a batch size shared by many, so few compile."""
+    return 1 << (max(int(n), int(minimum), 1) - 1).bit_length()

@@ -2,14 +2,17 @@
 
 They run on the Jaxonomy engine as the independent truth of tests and
 synthetic benches (``drivecal.bench``); drivecal's forward model never uses
-them.
+them. Their dq equations are drivecal's (``drivecal.physics``), written once.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from drivecal.physics import MotorParams
+from drivecal.physics import MotorParams, dq_derivatives, with_d_flux
+
+#: The PMSM block's parameters that are motor fields.
+_BLOCK_PARAMETERS = ("R", "Ld", "Lq", "lambda_m", "pole_pairs", "J", "B", "T_load")
 
 
 def saturating_pmsm_block(motor: MotorParams, *, d_saturation_current: float, locked: bool = False,
@@ -21,8 +24,8 @@ def saturating_pmsm_block(motor: MotorParams, *, d_saturation_current: float, lo
     ``Ld / cosh(i_d / i_sat)**2`` falls as |i_d| grows, which is what a
     saturating machine shows a bench test (Ld at 20 A lower than at 5 A).
     The q axis, torque and mechanics follow the flux:
-    ``Te = 1.5 p (psi_d i_q - Lq i_d i_q)``. Same ports as
-    ``jaxonomy.library.drives.PMSM``.
+    ``Te = 1.5 p (psi_d i_q - Lq i_d i_q)`` (``physics.with_d_flux``). Same
+    ports as ``jaxonomy.library.drives.PMSM``.
     """
     from jaxonomy.backend import numpy_api as npa
     from jaxonomy.library.drives import PMSM
@@ -31,21 +34,12 @@ def saturating_pmsm_block(motor: MotorParams, *, d_saturation_current: float, lo
 
     class SaturatingPMSM(PMSM):
         def _ode(self, _time, state, *inputs, **p) -> Any:
-            i_d, i_q, w_m, _theta = state.continuous_state
-            v_d, v_q = inputs[0][0], inputs[0][1]
-            x = i_d / i_sat
-            psi_d = p["Ld"] * i_sat * npa.tanh(x) + p["lambda_m"]
-            l_inc = p["Ld"] / npa.cosh(x) ** 2
-            w_e = p["pole_pairs"] * w_m
-            di_d = (v_d - p["R"] * i_d + w_e * p["Lq"] * i_q) / l_inc
-            di_q = (v_q - p["R"] * i_q - w_e * psi_d) / p["Lq"]
-            if self._locked:
-                dw_m, dtheta = 0.0 * w_m, 0.0 * w_m
-            else:
-                torque = 1.5 * p["pole_pairs"] * (psi_d * i_q - p["Lq"] * i_d * i_q)
-                dw_m = (torque - p["B"] * w_m - p["T_load"]) / p["J"]
-                dtheta = w_m
-            return npa.stack([di_d, di_q, dw_m, dtheta])
+            x = state.continuous_state
+            linear = MotorParams(**{k: p[k] for k in _BLOCK_PARAMETERS})
+            s = x[0] / i_sat
+            at_i_d = with_d_flux(linear, x[0], flux_d=p["Ld"] * i_sat * npa.tanh(s) + p["lambda_m"],
+                                 inductance_d=p["Ld"] / npa.cosh(s) ** 2)
+            return npa.stack(dq_derivatives(x, inputs[0], at_i_d, self._locked))
 
     return SaturatingPMSM(
         R=float(motor.R), Ld=float(motor.Ld), Lq=float(motor.Lq), lambda_m=float(motor.lambda_m),

@@ -1,6 +1,6 @@
 """Hand-off to simulation: a calibrated motor as a Jaxonomy PMSM block.
 
-The same builder makes the synthetic bench's plant (``bench.py``), so the
+The same builder makes the synthetic bench's plant (``_engine``), so the
 exported block is exactly the kind of block the bench data came from.
 """
 

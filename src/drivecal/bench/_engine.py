@@ -5,7 +5,7 @@ different blocks in Jaxonomy): a source that outputs the plan's sample k on
 ``[t_k, t_k+1)``, a zero-order hold at the sample period, and
 ``jaxonomy.library.drives.PMSM``. Jaxonomy's adaptive solver integrates it; the
 currents are read at exactly ``t_k = k / sample_rate``. drivecal's own RK4
-rollout (``forward.py``) is never used here, so comparing the two is a real test.
+rollout (``drivecal.model``) is never used here, so comparing the two is a real test.
 """
 
 from __future__ import annotations
@@ -19,9 +19,7 @@ import numpy as np
 
 from ..data import BenchData, SegmentData
 from ..errors import PlanError
-from ..model import delayed, sensor_offsets
-from ..physics import dead_time_error
-from ..physics import MotorParams, resistance_at
+from ..physics import MotorParams, dead_time_error, delayed, resistance_at, sensor_offsets
 from ..plan import Plan, Segment
 
 #: Engine tolerances: tight enough that the bench is exact to ~1e-9 A.

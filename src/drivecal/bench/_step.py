@@ -32,6 +32,7 @@ import numpy as np
 
 from ._engine import ENGINE_ATOL, ENGINE_RTOL, _quiet_jaxonomy
 from ..data import BenchData, SegmentData
+from .._stats import next_power_of_two
 from ..errors import PlanError
 from ..physics import MotorParams
 from ..plan import Plan, Segment
@@ -70,7 +71,7 @@ def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float) -> np
     from jaxonomy import SimulatorOptions, simulate
 
     n = segment.num_samples(sample_rate)
-    span = 1 << max(n - 1, 1).bit_length()  # simulated samples: a power of two >= n
+    span = next_power_of_two(n, minimum=2)  # simulated samples: a power of two >= n
     diagram, context, pmsm, source = _diagram(bool(segment.locked))
     fs = float(sample_rate)
     scaled = {"R": float(motor.R), "Ld": float(motor.Ld) * fs, "Lq": float(motor.Lq) * fs,

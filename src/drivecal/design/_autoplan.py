@@ -42,6 +42,7 @@ import math
 
 from ._assess import MAX_ELECTRICAL_STEP as _DESIGN_MAX_STEP
 from ._assess import DesignReport, assess_design
+from .._stats import next_power_of_two
 from ..errors import DrivecalError
 from ..physics import ESTIMATED, MotorParams
 from ..plan import Plan, Segment
@@ -121,7 +122,7 @@ def _nice_ceil(x: float) -> float:
 
 def _bucket(n: int) -> int:
     """The smallest power of two at or above ``n`` (a compiled fit is shared per size)."""
-    return 1 << max(int(n) - 1, 1).bit_length()
+    return next_power_of_two(n, minimum=2)
 
 
 def _spread(counts: list[int], total: int) -> list[int]:

@@ -31,44 +31,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .._stats import chi2_sf
+from ..results import Status
+from ._whiteness import WHITENESS_ALPHA, WHITENESS_LAGS, ljung_box, whiteness_rule
 
 #: sigma_hat above this multiple of the stated sensor noise means mismatch.
 SIGMA_RATIO_MAX = 1.5
-#: Lags of the Ljung-Box whiteness test.
-WHITENESS_LAGS = 10
-#: Family-wise false-alarm rate of the whiteness tests of one fit.
-WHITENESS_ALPHA = 1e-3
-
-
-def ljung_box(x: np.ndarray, lags: int = WHITENESS_LAGS) -> tuple[Any, Any]:
-    """Ljung-Box statistic ``Q = N(N+2) sum_k r_k^2/(N-k)`` and its chi^2(lags) p-value.
-
-    Args:
-        x: residual series along the last axis, shape (..., N), N > lags + 1;
-            leading axes (motors of a fleet, segments) are tested independently.
-        lags: number of autocorrelation lags summed.
-
-    Returns:
-        ``(Q, p)``: floats for one series, arrays of shape (...) otherwise
-        (NaN where a series is too short or constant).
-    """
-    x = np.asarray(x, dtype=float)
-    n = x.shape[-1]
-    lags = min(lags, n - 2)
-    if lags < 1:
-        nan = np.full(x.shape[:-1], np.nan)
-        return (float("nan"), float("nan")) if x.ndim == 1 else (nan, nan)
-    d = x - x.mean(axis=-1, keepdims=True)
-    # einsum sums the lagged products without a temporary array per lag (a fleet tests ~1000 series a chunk).
-    denom = np.einsum("...i,...i->...", d, d)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        r = np.stack([np.einsum("...i,...i->...", d[..., :-k], d[..., k:]) for k in range(1, lags + 1)], axis=-1)
-        r = r / denom[..., None]
-        q = n * (n + 2) * np.sum(r**2 / (n - np.arange(1, lags + 1)), axis=-1)
-    q = np.where(denom > 0, q, np.nan)
-    p = chi2_sf(q, lags)
-    return (float(q), float(p)) if x.ndim == 1 else (q, p)
 
 
 def residual_checks(
@@ -108,8 +75,7 @@ def residual_checks(
             if np.isfinite(p):
                 tests.append(p)
         per_segment.append(entry)
-    threshold = WHITENESS_ALPHA / max(len(tests), 1)
-    white = all(p >= threshold for p in tests)
+    threshold, white = whiteness_rule(tests)
     ratio = float(sigma_hat / sigma_stated) if sigma_stated else None
     return {
         "sigma_hat": float(sigma_hat),
@@ -129,8 +95,8 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
     """The verdict of one fit's result JSON (see the module docstring for the rule).
 
     Returns:
-        ``{"status", "headline", "details"}``: status one of ``calibrated``,
-        ``partial``, ``mismatch``, ``failed``; the headline is the sentence a
+        ``{"status", "headline", "details"}``: status a :class:`drivecal.results.Status`
+        key (``calibrated``, ``partial``, ``mismatch``, ``failed``); the headline is the sentence a
         report leads with; details list every finding, most serious first.
     """
     not_ident = [n for n, p in result["parameters"].items() if not p["identifiable"]]
@@ -159,11 +125,11 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
     if not_ident:
         details.append(f"{', '.join(not_ident)} not identifiable by this plan: held at the prior, not calibrated")
     if not result["converged"]:
-        status, headline = "failed", f"not calibrated: the fit did not converge ({result.get('message', '')})"
+        status, headline = Status.NOT_CONVERGED, f"not calibrated: the fit did not converge ({result.get('message', '')})"
     elif mismatch:
-        status, headline = "mismatch", "model mismatch suspected"
+        status, headline = Status.MISMATCH, "model mismatch suspected"
     elif not_ident:
-        status, headline = "partial", f"partially calibrated: {', '.join(not_ident)} not identifiable by this plan"
+        status, headline = Status.PARTIAL, f"partially calibrated: {', '.join(not_ident)} not identifiable by this plan"
     else:
-        status, headline = "calibrated", "calibrated"
-    return {"status": status, "headline": headline, "details": details}
+        status, headline = Status.CALIBRATED, "calibrated"
+    return {"status": status.key, "headline": headline, "details": details}

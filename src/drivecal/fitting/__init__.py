@@ -4,7 +4,7 @@ Produces :class:`drivecal.results.Calibration` (re-exported here for the old imp
 """
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
-from ..results import Calibration, result_message  # TODO(lead): importers move to drivecal.results
+from ..results import Calibration
 from ._fit import fit, fit_currents
 from ._initial import SPAN, START_TILE, equation_error_start, start_from_data
 from ._options import FitOptions

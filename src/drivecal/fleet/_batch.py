@@ -8,13 +8,13 @@ group and chunk, each motor with its own applied voltages and measured speed.
 A run's chunks are of equal size and batch sizes are rounded up to powers of
 two (padding repeats a real motor and is dropped), so a process compiles each
 shape once or twice and reuses it for the rest of the run. Chunks run in this
-process, in local helper processes, or on a dask cluster.
+process, in local helper processes, or on a dask cluster (``_runners``).
 
 Nothing is lost: every input file yields exactly one row, a file that fails
 validation or a fit that does not converge included, with its reason. Rows are
 written per chunk to ``<out>.parts/`` (each part atomically), so a killed run
 resumes where it stopped; the final table is assembled, checked against the
-fleet (robust z-scores) and written atomically.
+fleet (robust z-scores, ``_checks``) and written atomically.
 """
 
 from __future__ import annotations
@@ -25,91 +25,30 @@ import glob
 import math
 import os
 import shutil
-import sys
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Sequence
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from ..plan import MotorFile
+from .._io import atomic_path
+from .._stats import next_power_of_two
 from ..data import FORMATS, BenchData, benches_from_frames, read_table, stacked_experiment
 from ..errors import DrivecalError
-from ..fitting import fit_currents, result_message
-from ..model import Experiment, model_experiment, simulate_states
+from ..fitting import fit_currents
 from ..identify import check_requested
-from ..physics import ESTIMATED, MotorParams
-from ..report import content_sha256
-from .._io import atomic_path
-from ..diagnose import WHITENESS_ALPHA, ljung_box
+from ..model import model_experiment
+from ..data import MotorFile
+from ..results import Status, content_sha256, result_message
+from ._checks import DEFAULT_OUTLIER_Z, FLEET_COLUMNS, fleet_checks, residual_diagnostics
+from ._runners import run_chunks, tune_if_dask_worker
 
-#: Robust z-score beyond which a parameter marks a motor as an outlier.
-DEFAULT_OUTLIER_Z = 5.0
-
-STATUS_CALIBRATED = "calibrated"
-STATUS_PARTIAL = "partially calibrated"
-STATUS_NOT_CONVERGED = "not converged"
-STATUS_INVALID = "invalid file"
-
-
-# --------------------------------------------------------------------------- the process
-
-
-_tuned = False
-
-
-def tune_for_batch() -> None:
-    """Tune this process for a long batch; call it once the modules are imported, before JAX starts.
-
-    - The objects loaded so far (JAX, drivecal: millions) leave the garbage collector's view
-      (``gc.freeze``): its full collections walked them all, ~3 % of a batch's CPU.
-    - Freed memory is reused, not returned to the system (:func:`_keep_freed_memory`).
-
-    Once per process; later calls do nothing.
-    """
-    import gc
-
-    global _tuned
-    if _tuned:
-        return
-    _tuned = True
-    gc.freeze()
-    _keep_freed_memory()
-
-
-def _in_dask_worker() -> bool:
-    """Whether this code runs as a task of a dask worker (a process that only runs batches)."""
-    if "distributed" not in sys.modules:  # not imported: certainly not a worker (and importing it costs)
-        return False
-    try:
-        sys.modules["distributed"].get_worker()
-    except (AttributeError, ValueError):
-        return False
-    return True
-
-
-def _keep_freed_memory() -> bool:
-    """Let this process reuse the memory it frees instead of returning it to the system (glibc only).
-
-    Each chunk's fit allocates ~120 MB of temporaries, and glibc hands blocks that large out as fresh
-    mappings (from the threads XLA computes on): every page then faults on first touch, ~120 faults
-    and ~0.25 ms of system time a motor. With one malloc arena, no mappings and a high trim threshold,
-    the next chunk reuses the same pages (faults a third, system time half). Takes effect for threads
-    started afterwards (JAX's); returns whether it applied.
-    """
-    import ctypes
-    import ctypes.util
-
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):  # not glibc (macOS, musl): nothing to tune
-        return False
-    m_trim_threshold, m_mmap_max, m_arena_max = -1, -4, -8
-    return all(mallopt(option, value) == 1
-               for option, value in ((m_arena_max, 1), (m_mmap_max, 0), (m_trim_threshold, 1 << 30)))
+# The fleet table's status words as constants: aliases of the ``Status`` labels, kept for one release
+# (0.2) so code written against them still runs; use ``Status.CALIBRATED.label`` etc. instead.
+STATUS_CALIBRATED = Status.CALIBRATED.label
+STATUS_PARTIAL = Status.PARTIAL.label
+STATUS_NOT_CONVERGED = Status.NOT_CONVERGED.label
+STATUS_INVALID = Status.INVALID.label
 
 
 # --------------------------------------------------------------------------- inputs
@@ -231,41 +170,17 @@ def _shape_key(bench: BenchData, measured_speed: bool) -> tuple:
     )
 
 
+
 def _bucket(n: int, chunk: int) -> int:
     """Batch size to compile for n motors: the next power of two, at most ``chunk``."""
-    return min(chunk, 1 << max(0, math.ceil(math.log2(max(n, 1)))))
-
-
-# --------------------------------------------------------------------------- diagnostics
-
-
-def residual_diagnostics(residuals: np.ndarray, segment_start: np.ndarray) -> dict:
-    """Per-motor whiteness of the residuals (B, M, 2) A, the verdict's test batched.
-
-    Each segment and current axis gets the Ljung-Box test of
-    ``verdict.ljung_box``; ``mismatch`` is the verdict's rule: some p-value
-    below ``WHITENESS_ALPHA`` divided by the number of tests (Bonferroni).
-    Returns ``resid_min_p`` (the smallest p-value) and ``mismatch``, each (B,).
-    """
-    # Time along the last axis, contiguous: the lag sums then stream through memory (6x faster than strided).
-    r = np.ascontiguousarray(np.moveaxis(np.asarray(residuals), 1, -1))  # (B, 2, M)
-    starts = np.asarray(segment_start, dtype=bool)
-    if starts.ndim == 2:
-        starts = starts[0]
-    bounds = list(np.flatnonzero(starts)) + [starts.shape[0]]
-    p_values = [ljung_box(r[..., lo:hi])[1] for lo, hi in zip(bounds[:-1], bounds[1:])]
-    p = np.concatenate([np.reshape(pv, (r.shape[0], -1)) for pv in p_values], axis=1)  # (B, segments * 2)
-    tested = np.isfinite(p)
-    threshold = WHITENESS_ALPHA / np.maximum(tested.sum(axis=1), 1)
-    min_p = np.where(tested, p, np.inf).min(axis=1)
-    return {"resid_min_p": np.where(np.isfinite(min_p), min_p, np.nan), "mismatch": min_p < threshold}
+    return min(chunk, next_power_of_two(n))
 
 
 # --------------------------------------------------------------------------- one chunk
 
 
-def _failed_row(item: _Loaded, status: str, reason: str) -> dict[str, Any]:
-    return {"serial": item.serial, "file": item.path, "file_sha256": item.sha256, "status": status,
+def _failed_row(item: _Loaded, status: Status, reason: str) -> dict[str, Any]:
+    return {"serial": item.serial, "file": item.path, "file_sha256": item.sha256, "status": status.label,
             "reason": reason, "converged": False}
 
 
@@ -290,7 +205,8 @@ def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool
     columns: dict[str, Any] = {
         "serial": [it.serial for it in items], "file": [it.path for it in items],
         "file_sha256": [it.sha256 for it in items],
-        "status": np.where(converged, STATUS_PARTIAL if partial else STATUS_CALIBRATED, STATUS_NOT_CONVERGED),
+        "status": np.where(converged, (Status.PARTIAL if partial else Status.CALIBRATED).label,
+                           Status.NOT_CONVERGED.label),
         "reason": [(reason_partial if partial else "") if ok else m for ok, m in zip(converged, messages)],
         "converged": converged.astype(bool), "message": messages,
         "iterations": np.asarray(cal.iterations)[:n].astype(int),
@@ -324,23 +240,20 @@ def calibrate_files(
     """
     from .._version import __version__
 
-    if not _tuned and _in_dask_worker():
-        # A dask worker runs batches only: tuned as local helpers are, on its first chunk (10 000 motors
-        # on a 2-worker LocalCluster: 14.0 s untuned, 10.9 s tuned; medians of 3, interleaved).
-        tune_for_batch()
+    tune_if_dask_worker()
     loaded = _load([str(p) for p in paths], motor_file)
     failed: list[dict] = []
     fitted: list[pd.DataFrame] = []
     groups: dict[tuple, list[_Loaded]] = {}
     for item in loaded:
         if item.bench is None:
-            failed.append(_failed_row(item, STATUS_INVALID, item.reason or "unreadable"))
+            failed.append(_failed_row(item, Status.INVALID, item.reason or "unreadable"))
             continue
         if motor_file.estimate is not None:
             try:
                 check_requested(motor_file.names, item.bench.experiment(measured_speed, host=True), item.path)
             except DrivecalError as exc:
-                failed.append(_failed_row(item, STATUS_INVALID, str(exc)))
+                failed.append(_failed_row(item, Status.INVALID, str(exc)))
                 continue
         groups.setdefault(_shape_key(item.bench, measured_speed), []).append(item)
     for items in groups.values():
@@ -349,47 +262,13 @@ def calibrate_files(
             try:
                 fitted.append(_fit_group(part, motor_file, measured_speed, chunk))
             except DrivecalError as exc:
-                failed += [_failed_row(it, STATUS_INVALID, str(exc)) for it in part]
+                failed += [_failed_row(it, Status.INVALID, str(exc)) for it in part]
     frames = ([pd.DataFrame(failed)] if failed else []) + fitted
     table = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["file"])
     order = {item.path: i for i, item in enumerate(loaded)}
     table = table.iloc[np.argsort(table["file"].map(order).to_numpy(), kind="stable")].reset_index(drop=True)
     table["drivecal_version"] = __version__
     return table
-
-
-# --------------------------------------------------------------------------- fleet checks
-
-
-def fleet_checks(table: pd.DataFrame, threshold: float = DEFAULT_OUTLIER_Z) -> pd.DataFrame:
-    """Add robust z-scores ``z_<name>`` against the batch and the ``outlier`` flags.
-
-    The centre is the median and the scale 1.4826·MAD of the calibrated
-    motors, so a few bad units cannot hide themselves by inflating the spread.
-    ``outlier_params`` lists the parameters beyond ``threshold`` (e.g. a
-    demagnetised rotor: ``lambda_m``; a shorted turn: ``R, Ld, Lq``).
-    """
-    out = table.copy()
-    good = out["status"].isin([STATUS_CALIBRATED, STATUS_PARTIAL]) if "status" in out else pd.Series(False)
-    flagged = pd.Series([[] for _ in range(len(out))], index=out.index, dtype=object)
-    for name in ESTIMATED:
-        if name not in out:
-            continue
-        usable = good & out.get(f"{name}_identifiable", pd.Series(False, index=out.index)).fillna(False).astype(bool)
-        values = out.loc[usable, name].astype(float)
-        z = pd.Series(np.nan, index=out.index)
-        if len(values) >= 3:
-            centre = float(values.median())
-            scale = 1.4826 * float((values - centre).abs().median())
-            scale = scale if scale > 0 else max(abs(centre) * 1e-12, 1e-300)
-            z[usable] = (values - centre) / scale
-        out[f"z_{name}"] = z
-        for idx in z.index[z.abs() > threshold]:
-            flagged[idx] = flagged[idx] + [name]
-    out["outlier"] = flagged.map(bool)
-    out["outlier_params"] = flagged.map(", ".join)
-    return out
-
 
 # --------------------------------------------------------------------------- the run
 
@@ -451,7 +330,7 @@ def _combine(tables: list[pd.DataFrame]) -> pd.DataFrame:
     if not tables:
         return pd.DataFrame()
     done = pd.concat(tables, ignore_index=True)
-    fleet_columns = [c for c in done.columns if c.startswith("z_") or c in ("outlier", "outlier_params")]
+    fleet_columns = [c for c in done.columns if c.startswith("z_") or c in FLEET_COLUMNS]
     return done.drop(columns=fleet_columns).drop_duplicates("file", keep="last")
 
 
@@ -483,7 +362,7 @@ def run_batch(
         resume: keep the rows of an earlier, interrupted run of the same
             ``out`` and calibrate only the files not yet in it.
         measured_speed: use a measured ``w_m`` as input (see ``BenchData.experiment``).
-        outlier_z: robust z-score threshold of the fleet check.
+        outlier_z: robust z-score threshold of the fleet check (recorded in the table's ``outlier_z``).
         progress: called as ``progress(done, total)`` after each chunk.
     """
     import time
@@ -521,7 +400,8 @@ def run_batch(
     progress(len(done_files & set(files)), len(files))
     finished = len(done_files & set(files))
     fresh = []
-    for k, table in _run_chunks(chunks, motor_file, chunk, measured_speed, workers, scheduler):
+    calibrate = functools.partial(calibrate_files, motor_file=motor_file, chunk=chunk, measured_speed=measured_speed)
+    for k, table in run_chunks(chunks, calibrate, workers, scheduler):
         save(k, table)
         fresh.append(table)
         finished += len(table)
@@ -540,222 +420,11 @@ def run_batch(
         out=out,
         total=len(table),
         done_before=len(done_files & set(files)),
-        calibrated=int((status == STATUS_CALIBRATED).sum()),
-        partial=int((status == STATUS_PARTIAL).sum()),
-        failed=int(status.isin([STATUS_INVALID, STATUS_NOT_CONVERGED]).sum()),
+        calibrated=int((status == Status.CALIBRATED.label).sum()),
+        partial=int((status == Status.PARTIAL.label).sum()),
+        failed=int(status.isin([Status.INVALID.label, Status.NOT_CONVERGED.label]).sum()),
         outliers=tuple(table.loc[table["outlier"], "serial"].astype(str)),
         mismatch=tuple(table.loc[table.get("mismatch", pd.Series(False, index=table.index)).fillna(False)
                                  .astype(bool), "serial"].astype(str)),
         seconds=time.perf_counter() - t0,
     )
-
-
-def _run_chunks(
-    chunks: list[list[str]],
-    motor_file: MotorFile,
-    chunk: int,
-    measured_speed: bool,
-    workers: int | None,
-    scheduler: str | None,
-) -> Iterable[tuple[int, pd.DataFrame]]:
-    """Yield ``(chunk index, rows)`` as chunks finish: in this process, in local helpers, or on dask workers."""
-    if not chunks:
-        return
-    calibrate = functools.partial(calibrate_files, motor_file=motor_file, chunk=chunk, measured_speed=measured_speed)
-    if scheduler is not None:
-        yield from _on_dask(chunks, calibrate, scheduler)
-        return
-    workers = min(workers or len(_allowed_cores()) or os.cpu_count() or 1, len(chunks))
-    if workers <= 1:
-        for k, paths in enumerate(chunks):
-            yield k, calibrate(paths)
-        return
-    yield from _on_local_processes(chunks, calibrate, workers)
-
-
-def _on_local_processes(chunks: list[list[str]], calibrate: Callable, workers: int) -> Iterable[tuple[int, pd.DataFrame]]:
-    """``workers`` helper processes take chunks from one queue, each the next as it finishes; this one saves.
-
-    The helpers are forked from this process while JAX has not started here (a fork then copies the
-    imported modules, not threads), else spawned; each loads the compiled fit from the persistent cache
-    and keeps it for its next chunks. When there are no more helpers than cores, each is pinned to a
-    core of its own (:func:`_worker_started`). They die with this process (Linux), so a killed run
-    leaves none. This process only hands out chunks and saves their rows: JAX never starts in it.
-    """
-    import multiprocessing
-    import queue
-    import threading
-    from concurrent.futures import ProcessPoolExecutor
-
-    try:
-        from jax._src.xla_bridge import backends_are_initialized
-    except ImportError:  # another JAX: assume it runs here, and spawn
-        def backends_are_initialized() -> bool:
-            return True
-
-    todo, lock, finished, stop = iter(enumerate(chunks)), threading.Lock(), queue.Queue(), threading.Event()
-
-    def take():
-        with lock:
-            return None if stop.is_set() else next(todo, None)
-
-    context = multiprocessing.get_context("spawn" if backends_are_initialized() else "fork")
-    cores = _cores_to_pin(workers)
-    started = context.Value("i", 0)  # helpers started so far: the next one takes cores[started]
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_started,
-                             initargs=(cores, started)) as pool:
-
-        def feed(_done=None) -> None:
-            """Hand a helper its next chunk (called again as each of its chunks finishes)."""
-            item = take()
-            if item is not None:
-                pool.submit(calibrate, item[1]).add_done_callback(lambda f, k=item[0]: (finished.put((k, f)), feed()))
-
-        try:
-            for _ in range(workers):
-                feed()
-            for _ in chunks:
-                k, future = finished.get()
-                yield k, future.result()
-        finally:
-            stop.set()  # on an error or interrupt, no helper starts another chunk
-
-
-def _allowed_cores() -> list[int]:
-    """The cores this process may run on (its affinity); empty where the system does not say (not Linux)."""
-    try:
-        return sorted(os.sched_getaffinity(0))
-    except AttributeError:
-        return []
-
-
-def _cores_to_pin(workers: int) -> tuple[int, ...]:
-    """The cores local helpers are pinned to, one each; none when there are more helpers than cores.
-
-    Two processes fitting chunks side by side on this 2-core machine took 1.36 ms a motor each pinned
-    and 1.56 ms left to the scheduler (medians of six). XLA sizes its thread pool by the cores it may
-    use, so a pinned helper's threads no longer wait on each other across cores (pinning only those
-    threads gave 1.44 ms), and the helper keeps its core's caches.
-    """
-    cores = _allowed_cores()  # none known (not Linux): no pinning
-    return tuple(cores[:workers]) if workers <= len(cores) else ()
-
-
-def _worker_started(cores: tuple[int, ...] = (), started=None) -> None:
-    """A local helper process: pinned to its core (before JAX starts its threads, which inherit it),
-    dies with the batch (Linux), tuned as the batch is."""
-    import ctypes
-    import signal
-
-    if cores and started is not None:
-        with started.get_lock():
-            index, started.value = started.value, started.value + 1
-        os.sched_setaffinity(0, {cores[index % len(cores)]})
-    try:
-        pr_set_pdeathsig = 1
-        ctypes.CDLL(None).prctl(pr_set_pdeathsig, signal.SIGKILL)
-    except (OSError, AttributeError):  # not Linux
-        pass
-    tune_for_batch()  # a forked helper inherits this process's tuning (frozen objects, malloc settings): no-op
-
-
-def _on_dask(chunks: list[list[str]], calibrate: Callable, scheduler: str) -> Iterable[tuple[int, pd.DataFrame]]:
-    """Send every chunk to the workers of a running dask scheduler; yield them as they finish."""
-    from distributed import Client, as_completed
-
-    try:
-        client = Client(scheduler, timeout="10s")
-    except OSError as exc:
-        raise DrivecalError(f"--scheduler {scheduler}: cannot connect ({exc}); start it with "
-                            "`dask scheduler` and check the address.") from None
-    with client:
-        futures = {client.submit(calibrate, paths, pure=False): k for k, paths in enumerate(chunks)}
-        for future in as_completed(futures):
-            yield futures[future], future.result()
-
-
-# --------------------------------------------------------------------------- synthetic fleets
-
-
-@functools.partial(jax.jit, static_argnames=("names",))
-def _fleet_states(theta: jnp.ndarray, nominal: MotorParams, experiment: Experiment, names) -> jnp.ndarray:
-    return jax.vmap(lambda th: predict_currents_and_speed(nominal.with_vector(names, th), experiment))(theta)
-
-
-def predict_currents_and_speed(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
-    """``[i_d, i_q, w_m]`` (A, A, rad/s) at every sample, shape (M, 3)."""
-    return simulate_states(motor, experiment, keep=3)
-
-
-def synthetic_fleet(
-    directory: str | os.PathLike,
-    count: int,
-    *,
-    plan=None,
-    nominal: MotorParams | None = None,
-    spread: float = 0.02,
-    noise: float = 0.02,
-    seed: int = 0,
-    outliers: dict[int, dict[str, float]] | None = None,
-    suffix: str = ".parquet",
-) -> pd.DataFrame:
-    """Write ``count`` bench files of a synthetic production run; return the true parameters.
-
-    Each motor's R, Ld, Lq, lambda_m are the nominal values times
-    ``1 + spread * N(0, 1)`` (manufacturing spread); ``outliers`` maps a motor
-    index to factors that plant a fault (``{"lambda_m": 0.85}``: a demagnetised
-    rotor). Currents and speed come from drivecal's forward model (equal to
-    the Jaxonomy engine to ~1e-9 A, and thousands of times faster for a fleet)
-    plus Gaussian current noise of ``noise`` A. Files are named
-    ``SN<index>.<suffix>`` and carry a ``serial`` column.
-    """
-    from ..physics import DEFAULT_MOTOR
-    from ..plan import default_plan
-
-    plan = plan or default_plan()
-    nominal = nominal or DEFAULT_MOTOR
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(seed)
-    theta = np.asarray(nominal.vector(ESTIMATED)) * (1.0 + spread * rng.standard_normal((count, len(ESTIMATED))))
-    planted = np.zeros(count, dtype=bool)
-    for index, factors in (outliers or {}).items():
-        for name, factor in factors.items():
-            theta[index, ESTIMATED.index(name)] *= factor
-        planted[index] = True
-    experiment = Experiment.from_plan(plan)
-    template = BenchData(
-        tuple(
-            dataclasses.replace(s, currents=np.zeros((s.num_samples, 2)), w_m=np.zeros(s.num_samples))
-            for s in _plan_segments(plan)
-        ),
-        plan.sample_rate,
-    ).to_frame()
-    serials = [f"SN{i:06d}" for i in range(count)]
-    for start in range(0, count, 512):
-        states = np.asarray(_fleet_states(jnp.asarray(theta[start : start + 512]), nominal, experiment, ESTIMATED))
-        for k, x in enumerate(states, start):
-            frame = template.assign(
-                i_d=x[:, 0] + noise * rng.standard_normal(len(x)),
-                i_q=x[:, 1] + noise * rng.standard_normal(len(x)),
-                w_m=np.where(template["locked"] == 1, 0.0, x[:, 2]),
-                serial=serials[k],
-            )
-            path = directory / f"{serials[k]}{suffix}"
-            if suffix == ".parquet":
-                frame.to_parquet(path, index=False)
-            else:
-                frame.to_csv(path, index=False, float_format="%.17g")
-    truth = pd.DataFrame(theta, columns=list(ESTIMATED))
-    truth.insert(0, "serial", serials)
-    truth["planted_outlier"] = planted
-    return truth
-
-
-def _plan_segments(plan):
-    from ..data import SegmentData
-
-    for seg in plan.segments:
-        n = seg.num_samples(plan.sample_rate)
-        yield SegmentData(seg.name, seg.locked, np.arange(n) / plan.sample_rate, seg.voltages(plan.sample_rate),
-                          np.zeros((n, 2)))

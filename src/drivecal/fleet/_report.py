@@ -18,10 +18,19 @@ import pandas as pd
 
 import numpy as np
 from ..errors import DrivecalError
-from ._batch import STATUS_CALIBRATED, STATUS_INVALID, STATUS_NOT_CONVERGED, STATUS_PARTIAL
 from ..report import CSS, figure_data_uri
 from ..physics import ESTIMATED, UNITS
+from ..results import Status
 from .._io import atomic_path
+from .._stats import robust_centre_scale
+from ._checks import outlier_z_of
+
+#: The table's status words counted in the summary, in its order.
+_SUMMARY = (Status.CALIBRATED, Status.PARTIAL, Status.NOT_CONVERGED, Status.INVALID)
+#: Statuses whose estimates are usable (drawn and summarised).
+_USABLE = [Status.CALIBRATED.label, Status.PARTIAL.label]
+#: Statuses of the motors listed as failed.
+_FAILED = [Status.INVALID.label, Status.NOT_CONVERGED.label]
 
 
 def load_results(path: str | os.PathLike) -> pd.DataFrame:
@@ -63,19 +72,19 @@ def render_fleet_html(table: pd.DataFrame, source: str, *, generated: str | None
     """The fleet report page as a string."""
     stamp = generated or _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
     status = table["status"]
-    counts = {s: int((status == s).sum()) for s in (STATUS_CALIBRATED, STATUS_PARTIAL, STATUS_NOT_CONVERGED,
-                                                       STATUS_INVALID)}
+    counts = {s.label: int((status == s.label).sum()) for s in _SUMMARY}
     names = [n for n in ESTIMATED if n in table]
     summary = "".join(f"<tr><td class='l'>{_e(k)}</td><td>{v}</td></tr>" for k, v in counts.items())
     stats = []
     for n in names:
-        v = table.loc[status.isin([STATUS_CALIBRATED, STATUS_PARTIAL]), n].astype(float)
+        v = table.loc[status.isin(_USABLE), n].astype(float)
         if len(v):
-            stats.append(f"<tr><td class='l'>{n} [{UNITS[n]}]</td><td>{v.median():.6g}</td>"
-                         f"<td>{1.4826 * (v - v.median()).abs().median():.3g}</td><td>{v.min():.6g}</td>"
+            centre, robust_sd = robust_centre_scale(v)
+            stats.append(f"<tr><td class='l'>{n} [{UNITS[n]}]</td><td>{centre:.6g}</td>"
+                         f"<td>{robust_sd:.3g}</td><td>{v.min():.6g}</td>"
                          f"<td>{v.max():.6g}</td></tr>")
     outliers = table[table.get("outlier", False) == True]  # noqa: E712 (a pandas mask)
-    failed = table[status.isin([STATUS_INVALID, STATUS_NOT_CONVERGED])]
+    failed = table[status.isin(_FAILED)]
     mismatch = table[table.get("mismatch", pd.Series(False, index=table.index)).fillna(False).astype(bool)]
     parts = [
         "<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'>",
@@ -93,7 +102,7 @@ def render_fleet_html(table: pd.DataFrame, source: str, *, generated: str | None
         f"<h2>Model mismatch suspected ({len(mismatch)})</h2>",
         _rows(mismatch, ["serial", "resid_min_p", "sigma_hat"]) if len(mismatch) else "<p>none</p>",
     ]
-    calibrated = table[status.isin([STATUS_CALIBRATED, STATUS_PARTIAL])]
+    calibrated = table[status.isin(_USABLE)]
     if len(calibrated):
         parts += [
             "<h2>Distributions</h2>",
@@ -117,17 +126,20 @@ def write_fleet_report(results: str | os.PathLike, html_out: str | os.PathLike) 
     return table
 
 
-def fleet_histograms(table, names=None):
+def fleet_histograms(table, names=None, threshold=None):
     """Histogram of each estimate over a fleet, with the median, the ±z band and the outliers marked.
 
     Args:
         table: the ``drivecal batch`` results (pandas DataFrame).
         names: parameters to show (default: those present of R, Ld, Lq, lambda_m).
+        threshold: the band's half-width in robust SDs (default: the run's ``--outlier-z``, as the
+            table records it; ``DEFAULT_OUTLIER_Z`` for a table written before it was recorded).
     """
     from ..report.plots import plt
 
-    from ._batch import DEFAULT_OUTLIER_Z
     from ..physics import ESTIMATED, UNITS
+
+    threshold = outlier_z_of(table) if threshold is None else float(threshold)
 
     names = [n for n in (names or ESTIMATED) if n in table]
     fig, axes = plt.subplots(1, max(len(names), 1), figsize=(3.6 * max(len(names), 1), 3.0), squeeze=False)
@@ -142,10 +154,9 @@ def fleet_histograms(table, names=None):
             ax.plot([], [], color="C3", label="outlier")
         z = table.get(f"z_{name}")
         if z is not None and z.notna().sum() >= 3:
-            centre = float(np.nanmedian(values[z.notna()]))
-            scale = float(np.nanmedian(np.abs(values[z.notna()] - centre))) * 1.4826
-            ax.axvspan(centre - DEFAULT_OUTLIER_Z * scale, centre + DEFAULT_OUTLIER_Z * scale, color="C2", alpha=0.12,
-                       label=f"median ± {DEFAULT_OUTLIER_Z:g} robust SD")
+            centre, scale = robust_centre_scale(values[z.notna()])
+            ax.axvspan(centre - threshold * scale, centre + threshold * scale, color="C2", alpha=0.12,
+                       label=f"median ± {threshold:g} robust SD")
         ax.set_xlabel(f"{name} [{UNITS[name]}]")
         ax.set_ylabel("motors")
         ax.legend(fontsize=7)

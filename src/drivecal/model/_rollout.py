@@ -21,238 +21,18 @@ electrical time constants its error is ~1e-9 A (see tests/test_forward.py).
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from typing import Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
+from ._experiment import Experiment
 from ._lowered_cache import call as cached_call
-from ..physics import dead_time_error
-from ..physics import DqCoefficients, MotorParams, dq_coefficients, dq_derivatives_from, resistance_at
-from ..plan import Plan
-
-
-#: Kinds of segment in ``Experiment.segments``: the rotor is locked; the speed
-#: is measured and drives the electrical equations; the speed is simulated.
-SEGMENT_KINDS: tuple[str, ...] = ("locked", "measured", "free")
-
-
-class Experiment(eqx.Module):
-    """What was applied on the bench, on the sample grid (a pytree of arrays).
-
-    Attributes:
-        voltages: applied ``[v_d, v_q]`` (V), shape (M, 2); row k acts on ``[t_k, t_k+1)``.
-        locked: 1.0 where the rotor is locked, 0.0 where free, shape (M,).
-        segment_start: True on the first sample of each segment, shape (M,).
-        initial_state: ``[i_d, i_q, w_m, theta_m]`` (A, A, rad/s, rad) a segment
-            starts from, read on its first sample, shape (M, 4).
-        sample_period: seconds between samples, scalar.
-        speed: measured mechanical speed at the start, middle and end of each
-            sample period, ``[w_m(t_k), w_m(t_k + dt/2), w_m(t_k+1)]`` (rad/s),
-            shape (M, 3); zero where unused.
-        speed_input: 1.0 where the measured speed drives the electrical
-            equations (J and B unused), 0.0 where speed is simulated, shape (M,).
-        temperature: winding temperature (degC) per sample, NaN where not
-            recorded (R is then the stated R), shape (M,).
-        theta_e: measured electrical rotor angle (rad) per sample, NaN where
-            not measured (dq bench files), shape (M,).
-        theta_e_start: electrical angle (rad) at the segment's start: the
-            measured one, else 0 (a locked rotor's d axis on phase a), shape (M,).
-        dead_time: the applied voltage includes the inverter's dead-time error
-            ``inverter.dead_time_error`` of magnitude ``motor.v_dead`` (static:
-            a model with it compiles separately).
-        phase_offsets: the measured currents include the phase sensors'
-            offsets ``offset_a``, ``offset_b``, rotated by the rotor angle (static).
-        thermal: some segment recorded a temperature, so R follows it (static;
-            without it the rollout skips the per-sample resistance).
-        dead_time_substeps: RK4 sub-steps per sample with the dead-time model
-            (static): 4 resolve its smooth sign to 3e-7 A of the engine.
-        segments: the segment layout (static): ``(start, stop, kind)`` per
-            segment, samples ``start:stop``, ``kind`` one of :data:`SEGMENT_KINDS`;
-            None when unknown (the rollout is then one scan over all samples).
-        linearised_tangents: derivatives of the segment-wise rollout from
-            the steps linearised all at once (static; fastest for one motor),
-            else by forward mode through the scans (fastest in ``vmap``-ped
-            batches of more than a few motors); same values either way.
-    """
-
-    voltages: jnp.ndarray
-    locked: jnp.ndarray
-    segment_start: jnp.ndarray
-    initial_state: jnp.ndarray
-    sample_period: jnp.ndarray
-    speed: jnp.ndarray
-    speed_input: jnp.ndarray
-    temperature: jnp.ndarray
-    theta_e: jnp.ndarray
-    theta_e_start: jnp.ndarray
-    dead_time: bool = eqx.field(static=True, default=False)
-    phase_offsets: bool = eqx.field(static=True, default=False)
-    thermal: bool = eqx.field(static=True, default=False)
-    dead_time_substeps: int = eqx.field(static=True, default=4)
-    segments: tuple[tuple[int, int, str], ...] | None = eqx.field(static=True, default=None)
-    linearised_tangents: bool = eqx.field(static=True, default=True)
-
-    @property
-    def num_samples(self) -> int:
-        """M, the number of sample instants."""
-        return int(self.voltages.shape[-2])
-
-    @classmethod
-    def from_segments(
-        cls,
-        voltages: list[np.ndarray],
-        locked: list[bool],
-        sample_period: float,
-        initial_states: list[np.ndarray] | None = None,
-        speeds: list[np.ndarray | None] | None = None,
-        temperatures: list[np.ndarray | float | None] | None = None,
-        angles: list[np.ndarray | None] | None = None,
-        delay_samples: int = 0,
-        host: bool = False,
-    ) -> Experiment:
-        """Lay segments end to end.
-
-        Every per-segment array may carry the same leading axes (a stack of
-        datasets of one plan shape, e.g. a fleet's benches); the experiment
-        then has them on every field, as :func:`stack_experiments` gives.
-
-        Args:
-            voltages: per segment, commanded ``[v_d, v_q]`` (V), shape (N_s, 2).
-            locked: per segment, whether the rotor is locked.
-            sample_period: seconds between samples (one per dataset of a stack).
-            initial_states: per segment, the starting state (default: rest).
-            speeds: per segment, a measured speed (rad/s, shape (N_s,)) to use
-                as an input, or None to simulate the speed from J and B.
-            temperatures: per segment, winding temperature (degC): a constant,
-                one value per sample, or None (not recorded).
-            angles: per segment, the measured electrical angle (rad, shape
-                (N_s,)) of a phase bench file, or None.
-            delay_samples: PWM/computation delay: the inverter applies command
-                k at sample k + delay_samples. The first samples of a segment
-                then apply 0 V (from rest) or the first command (a segment
-                that starts moving).
-            host: keep the arrays in numpy (a fleet stacks thousands of
-                experiments: one transfer for the stack, not one per field and motor).
-        """
-        batch = np.shape(voltages[0])[:-2]  # leading axes: one experiment per dataset (see stack_experiments)
-        applied, starts, lock, x0, speed, use, temp, theta, theta0 = [], [], [], [], [], [], [], [], []
-        layout, at = [], 0
-        for s, v in enumerate(voltages):
-            n = v.shape[-2]
-            measured = speeds is not None and speeds[s] is not None
-            layout.append((at, at + n, "measured" if measured else "locked" if locked[s] else "free"))
-            at += n
-            init = np.zeros(4) if initial_states is None else np.asarray(initial_states[s], dtype=float)
-            init = np.broadcast_to(init, batch + (4,))
-            applied.append(delayed(v, delay_samples, at_rest=~np.any(init[..., :3] != 0.0, axis=-1)))
-            t_s = None if temperatures is None else temperatures[s]
-            temp.append(np.full(batch + (n,), np.nan) if t_s is None
-                        else np.broadcast_to(np.asarray(t_s, dtype=float), batch + (n,)))
-            a_s = None if angles is None else angles[s]
-            theta.append(np.full(batch + (n,), np.nan) if a_s is None else np.asarray(a_s, dtype=float))
-            # The measured angle at the start, else 0 (also for a dataset of a stack that has none: NaN).
-            a0 = 0.0 if a_s is None else np.asarray(a_s, dtype=float)[..., :1]
-            theta0.append(np.broadcast_to(np.where(np.isfinite(a0), a0, 0.0), batch + (n,)))
-            start = np.zeros(n, dtype=bool)
-            start[0] = True
-            starts.append(np.broadcast_to(start, batch + (n,)))
-            lock.append(np.full(batch + (n,), float(locked[s])))
-            w = None if speeds is None else speeds[s]
-            if w is None:
-                speed.append(np.zeros(batch + (n, 3)))
-                use.append(np.zeros(batch + (n,)))
-            else:
-                w = np.asarray(w, dtype=float)
-                speed.append(_speed_at_stages(w))
-                use.append(np.ones(batch + (n,)))
-                init = np.concatenate([init[..., :2], w[..., :1], init[..., 3:]], axis=-1)
-            x0.append(np.broadcast_to(init[..., None, :], batch + (n, 4)))
-        xp = np if host else jnp
-        return cls(
-            voltages=xp.asarray(np.concatenate(applied, axis=-2), dtype=float),
-            locked=xp.asarray(np.concatenate(lock, axis=-1)),
-            segment_start=xp.asarray(np.concatenate(starts, axis=-1)),
-            initial_state=xp.asarray(np.concatenate(x0, axis=-2)),
-            sample_period=xp.asarray(np.broadcast_to(np.asarray(sample_period, dtype=float), batch)),
-            speed=xp.asarray(np.concatenate(speed, axis=-2)),
-            speed_input=xp.asarray(np.concatenate(use, axis=-1)),
-            temperature=xp.asarray(np.concatenate(temp, axis=-1)),
-            theta_e=xp.asarray(np.concatenate(theta, axis=-1)),
-            theta_e_start=xp.asarray(np.concatenate(theta0, axis=-1)),
-            thermal=temperatures is not None and any(t is not None for t in temperatures),
-            segments=tuple(layout),
-        )
-
-    @classmethod
-    def from_plan(cls, plan: Plan, *, delay_samples: int = 0) -> Experiment:
-        """The experiment a plan commands, every segment starting from rest.
-
-        Args:
-            plan: the plan (checked for feasibility first).
-            delay_samples: PWM/computation delay of the inverter (samples).
-        """
-        plan.check_feasible()
-        return cls.from_segments(
-            [seg.voltages(plan.sample_rate) for seg in plan.segments],
-            [seg.locked for seg in plan.segments],
-            plan.sample_period,
-            temperatures=[seg.temperature for seg in plan.segments],
-            delay_samples=delay_samples,
-        )
-
-    def with_extra_delay(self, samples: int) -> Experiment:
-        """The same run with the applied voltages ``samples`` more samples late, segment by segment."""
-        starts = np.flatnonzero(np.asarray(self.segment_start))
-        stops = np.append(starts[1:], self.num_samples)
-        volts = np.asarray(self.voltages)
-        x0 = np.asarray(self.initial_state)
-        later = [delayed(volts[a:b], samples, at_rest=not np.any(x0[a, :3])) for a, b in zip(starts, stops)]
-        return dataclasses.replace(self, voltages=jnp.asarray(np.concatenate(later, axis=0)))
-
-    @property
-    def has_angle(self) -> bool:
-        """Some sample carries a measured rotor angle (a phase bench file)."""
-        return bool(np.any(np.isfinite(np.asarray(self.theta_e))))
-
-
-def delayed(voltages: np.ndarray, delay_samples: int, *, at_rest: bool | np.ndarray = True) -> np.ndarray:
-    """The voltages an inverter with a ``delay_samples`` PWM/computation delay applies, shape (..., N, 2) (V).
-
-    Command k acts at sample k + delay_samples; before the first command acts
-    the inverter applies 0 V (a segment from rest) or the first command (a
-    segment that starts moving, whose earlier command is unknown); ``at_rest``
-    is one flag, or one per dataset of a stack (the leading axes).
-    """
-    if int(delay_samples) != delay_samples or delay_samples < 0:
-        raise ValueError(f"delay_samples must be a whole number of samples >= 0, got {delay_samples!r}")
-    d = int(delay_samples)
-    v = np.asarray(voltages, dtype=float)
-    if d == 0:
-        return v
-    # Per dataset of a stack (leading axes): 0 V from rest, else the first command.
-    rest = np.asarray(at_rest, dtype=bool)[..., None, None]
-    pad = np.where(rest, 0.0, np.broadcast_to(v[..., :1, :], v.shape[:-2] + (d, 2)))
-    return np.concatenate([pad, v], axis=-2)[..., : v.shape[-2], :]
-
-
-def _speed_at_stages(w: np.ndarray) -> np.ndarray:
-    """``[w_k, w_(k+1/2), w_(k+1)]`` (rad/s) from samples ``w`` (..., N): cubic midpoints, shape (..., N, 3).
-
-    Linear interpolation of the speed at the RK4 midpoint costs ~1e-5 A; the
-    four-point cubic midpoint brings the forward model back to ~1e-8 A.
-    """
-    # Linear extrapolation by one sample at the start and two at the end;
-    # the values past the last sample are never read back.
-    first, last, before = w[..., :1], w[..., -1:], w[..., -2:-1]
-    ext = np.concatenate([2 * first - w[..., 1:2], w, 2 * last - before, 3 * last - 2 * before], axis=-1)
-    w_mid = (-ext[..., :-3] + 9.0 * ext[..., 1:-2] + 9.0 * ext[..., 2:-1] - ext[..., 3:]) / 16.0
-    return np.stack([w, w_mid, ext[..., 2:-1]], axis=-1)
+from ..physics import DqCoefficients, MotorParams, dead_time_error, dq_coefficients, dq_derivatives_from
+from ..physics import resistance_at, sensor_offsets, with_dq_offsets
 
 
 def _quadratic(speed: Any, u: float) -> Any:
@@ -653,7 +433,7 @@ def predict_current_parts(motor: MotorParams, experiment: Experiment) -> tuple:
     if not _segmented(experiment):
         predicted = predict_currents(motor, experiment)
         return predicted[:, 0], predicted[:, 1]
-    return tuple(x for i_d, i_q in _segment_states(motor, experiment, 2) for x in _with_dq_offsets(i_d, i_q, motor))
+    return tuple(x for i_d, i_q in _segment_states(motor, experiment, 2) for x in with_dq_offsets(i_d, i_q, motor))
 
 
 def current_parts(experiment: Experiment, currents: Any) -> tuple:
@@ -691,62 +471,8 @@ def measured_currents(states: jnp.ndarray, motor: MotorParams, experiment: Exper
     does not model phase offsets.
     """
     if not experiment.phase_offsets:
-        return jnp.stack(_with_dq_offsets(states[:, 0], states[:, 1], motor), axis=-1)
+        return jnp.stack(with_dq_offsets(states[:, 0], states[:, 1], motor), axis=-1)
     theta = jnp.where(jnp.isnan(experiment.theta_e), experiment.theta_e_start + motor.pole_pairs * states[:, 3],
                       experiment.theta_e)
     d_offset, q_offset = sensor_offsets(theta, motor)
     return jnp.stack([states[:, 0] + d_offset, states[:, 1] + q_offset], axis=-1)
-
-
-def _with_dq_offsets(i_d: Any, i_q: Any, motor: MotorParams) -> tuple[Any, Any]:
-    """Currents (A) as the sensors report them without phase offsets: plus the dq offsets."""
-    return i_d + motor.offset_d, i_q + motor.offset_q
-
-
-def sensor_offsets(theta_e: Any, motor: MotorParams) -> tuple[Any, Any]:
-    """What the current sensors add to ``(i_d, i_q)`` (A) at electrical angle ``theta_e`` (rad).
-
-    The dq offsets, plus the phase offsets of two phase sensors (``i_c = -i_a - i_b``)
-    taken through the amplitude-invariant Clarke and Park transforms.
-    """
-    o_alpha = motor.offset_a
-    o_beta = (motor.offset_a + 2.0 * motor.offset_b) / jnp.sqrt(3.0)
-    c, s = jnp.cos(theta_e), jnp.sin(theta_e)
-    return motor.offset_d + o_alpha * c + o_beta * s, motor.offset_q - o_alpha * s + o_beta * c
-
-
-def model_experiment(experiment: Experiment, motor: MotorParams, names: tuple[str, ...]) -> Experiment:
-    """``experiment`` with the bench effects the model needs switched on.
-
-    The dead-time term costs in every RK4 stage, and phase offsets need the
-    rotor angle written out, so each is compiled in only when its parameters
-    are estimated or set non-zero.
-    """
-    def used(name):
-        return name in names or bool(np.any(np.asarray(getattr(motor, name)) != 0.0))
-
-    dead_time = experiment.dead_time or used("v_dead")
-    phase_offsets = experiment.phase_offsets or used("offset_a") or used("offset_b")
-    if (dead_time, phase_offsets) == (experiment.dead_time, experiment.phase_offsets):
-        return experiment
-    return dataclasses.replace(experiment, dead_time=dead_time, phase_offsets=phase_offsets)
-
-
-def stack_experiments(experiments: list[Experiment]) -> Experiment:
-    """One experiment per dataset along a new leading axis (all of the same plan shape).
-
-    The result feeds ``fit_currents`` with a batch of currents, fitting benches
-    that each applied their own voltages (or measured their own speed) in one call.
-    """
-    # Static model switches must agree across the batch: switch on what any one needs.
-    flags = {f: any(getattr(e, f) for e in experiments) for f in ("dead_time", "phase_offsets", "thermal")}
-    # The segment layout is shared by the batch; where the datasets' layouts differ, none is used.
-    layouts = {e.segments for e in experiments}
-    flags["segments"] = layouts.pop() if len(layouts) == 1 else None
-    fields = dataclasses.fields(Experiment)
-    statics = {f.name: getattr(experiments[0], f.name) for f in fields if f.metadata.get("static", False)}
-    # Field by field, stacked on the host, then one transfer per field (the experiments may hold numpy
-    # arrays); one Module built for the batch, not one per experiment (~0.1 ms each in a fleet).
-    arrays = {f.name: jnp.asarray(np.stack([np.asarray(getattr(e, f.name)) for e in experiments]))
-              for f in fields if not f.metadata.get("static", False)}
-    return Experiment(**arrays, **{**statics, **flags})

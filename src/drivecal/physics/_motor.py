@@ -241,6 +241,32 @@ def dq_derivatives(state: Any, v_dq: Any, motor: MotorParams, locked: Any) -> tu
     return dq_derivatives_from(dq_coefficients(motor), state, v_dq, locked)
 
 
+def with_d_flux(motor: MotorParams, i_d: Any, flux_d: Any, inductance_d: Any) -> MotorParams:
+    """The linear motor whose dq equations at d current ``i_d`` are those of a machine with a saturating d axis.
+
+    Where the d-axis flux ``psi_d(i_d)`` bends with current, the equations of
+    the module docstring hold with ``Ld`` the incremental inductance
+    ``d psi_d / d i_d`` in ``di_d/dt`` and the flux ``psi_d`` where
+    ``Ld*i_d + lambda_m`` stands (back-EMF and torque)::
+
+        L_inc * di_d/dt = v_d - R*i_d + w_e*Lq*i_q
+        Lq * di_q/dt = v_q - R*i_q - w_e*psi_d
+        Te = 1.5*pole_pairs*(psi_d*i_q - Lq*i_d*i_q)
+
+    Both hold for the linear motor with ``Ld = inductance_d`` (H) and
+    ``lambda_m = flux_d - inductance_d * i_d`` (Wb), so :func:`dq_derivatives`
+    of the result, at that state, are the saturating machine's: its equations
+    are these ones, not a copy.
+
+    Args:
+        motor: the other parameters (R, Lq, pole_pairs, J, B, T_load).
+        i_d: d current (A) of the state the result serves.
+        flux_d: d-axis flux ``psi_d(i_d)`` (Wb), magnet included.
+        inductance_d: incremental d inductance ``d psi_d / d i_d`` at ``i_d`` (H).
+    """
+    return motor.replace(Ld=inductance_d, lambda_m=flux_d - inductance_d * i_d)
+
+
 def resistance_at(motor: MotorParams, temperature: Any) -> Any:
     """Winding resistance (ohm) at ``temperature`` (degC): ``R * (1 + alpha_R * (T - T_ref))``.
 

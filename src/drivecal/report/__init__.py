@@ -8,8 +8,13 @@ from ._gains import (AXES, MAX_BANDWIDTH_FRACTION, AxisGains, CurrentLoopDesign,
                      loop_metrics, open_loop, pi_gains)
 from ._html import CSS, FIG_DPI, figure_data_uri, fit_section_html, render_html, verdict_html, write_html_report
 from ._record import build_result, segment_traces
-from ..results import content_sha256, load_result, result_fits, select_fit  # TODO(lead): importers move to drivecal.results
+# drivecal 0.1's flat `drivecal.report` module (atomic output, the plan as JSON) and `drivecal.record`'s readers,
+# importable from here for one release; their homes are drivecal._io, drivecal.plan and drivecal.results.
+from .._io import atomic_path, prepare_output_dir, save_figure, write_json
+from ..plan import plan_to_dict
+from ..results import load_result, result_fits, select_fit
 
-__all__ = ["AXES", "CSS", "FIG_DPI", "MAX_BANDWIDTH_FRACTION", "AxisGains", "CurrentLoopDesign", "Spread",
+__all__ = ["AXES", "atomic_path", "load_result", "plan_to_dict", "prepare_output_dir", "result_fits", "save_figure",
+           "select_fit", "write_json", "CSS", "FIG_DPI", "MAX_BANDWIDTH_FRACTION", "AxisGains", "CurrentLoopDesign", "Spread",
            "build_result", "design_current_loop", "figure_data_uri", "fit_section_html", "loop_metrics", "open_loop",
            "pi_gains", "render_html", "segment_traces", "verdict_html", "write_html_report"]

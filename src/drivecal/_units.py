@@ -1,0 +1,129 @@
+"""Physical quantities in TOML files (plan and motor files): numbers with units, strict schemas, one-sentence errors.
+
+Every physical value is either a plain number in SI units or a string with a
+unit, e.g. ``duration = "10 ms"``, ``v_d = "8 V"``, ``Ld = "3.2 mH"``. A wrong
+key or a unit of the wrong kind is refused with one sentence naming the file,
+the key and the fix (:func:`explain`). Base layer: imports only ``errors`` and
+third-party libraries.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any
+
+from pydantic import BaseModel, BeforeValidator, ConfigDict, ValidationError
+
+from .errors import DrivecalError
+
+_PREFIXES = {"": 1.0, "k": 1e3, "M": 1e6, "m": 1e-3, "u": 1e-6, "µ": 1e-6, "μ": 1e-6, "n": 1e-9}
+#: Base units by quantity; the unit written in a file must be one of these with a prefix.
+_UNITS = {
+    "time": ("s",),
+    "frequency": ("Hz",),
+    "voltage": ("V",),
+    "current": ("A",),
+    "resistance": ("ohm", "Ohm", "Ω"),
+    "inductance": ("H",),
+    "flux": ("Wb", "V*s", "Vs"),
+    "inertia": ("kg*m^2", "kg m^2", "kgm^2"),
+    "friction": ("N*m*s", "Nms", "N m s"),
+    "speed": ("rad/s",),
+    "torque": ("N*m", "Nm", "N m"),
+    "temperature": ("degC", "°C", "C"),
+    "temperature coefficient": ("1/K",),
+}
+_EXAMPLE = {"time": "10 ms", "frequency": "20 kHz", "voltage": "8 V", "current": "30 A", "resistance": "0.45 ohm",
+            "inductance": "3.2 mH", "flux": "0.0533 Wb", "inertia": "1.2e-3 kg*m^2", "friction": "8e-5 N*m*s",
+            "speed": "300 rad/s", "torque": "0.1 N*m", "temperature": "75 degC",
+            "temperature coefficient": "3.93e-3 1/K"}
+_NUMBER_UNIT = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$")
+
+
+class _UnitError(ValueError):
+    pass
+
+
+def parse_quantity(value: Any, quantity: str) -> float:
+    """A number (SI) or ``"<number> <prefix><unit>"`` string, converted to SI.
+
+    Raises ``ValueError`` with a message that names the expected unit.
+    """
+    if isinstance(value, bool):
+        raise _UnitError(f"expected a {quantity} such as '{_EXAMPLE[quantity]}', got {value!r}")
+    if isinstance(value, (int, float)):
+        return float(value)
+    if not isinstance(value, str):
+        raise _UnitError(f"expected a {quantity} such as '{_EXAMPLE[quantity]}', got {value!r}")
+    match = _NUMBER_UNIT.match(value)
+    if not match:
+        raise _UnitError(f"'{value}' is not a number with a unit; write e.g. '{_EXAMPLE[quantity]}'")
+    number, unit = float(match.group(1)), match.group(2)
+    if unit == "":
+        return number
+    for base in _UNITS[quantity]:
+        if unit.endswith(base) and unit[: -len(base)] in _PREFIXES:
+            return number * _PREFIXES[unit[: -len(base)]]
+    raise _UnitError(
+        f"'{value}' has unit '{unit}' but a {quantity} in {_UNITS[quantity][0]} is expected; "
+        f"write e.g. '{_EXAMPLE[quantity]}'"
+    )
+
+
+def quantity(name: str) -> Any:
+    """The type of a field holding a ``name`` quantity (a key of the units table): a float in SI,
+    read from a number or a ``"<number> <prefix><unit>"`` string (:func:`parse_quantity`)."""
+    return Annotated[float, BeforeValidator(lambda v: parse_quantity(v, name))]
+
+
+class StrictModel(BaseModel):
+    """A file's schema: unknown keys refused, values frozen."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _location(loc: tuple) -> str:
+    parts = []
+    for item in loc:
+        if isinstance(item, int):
+            parts[-1] = f"{parts[-1]}[{item}]" if parts else f"[{item}]"
+        elif item in ("step", "chirp", "multisine", "prbs", "samples", "float", "function-before[<lambda>(), float]"):
+            continue  # pydantic's union branch names are not keys of the file
+        elif isinstance(item, str) and (item.startswith("function-") or item.startswith("tagged-union[")):
+            continue
+        else:
+            parts.append(str(item))
+    return ".".join(parts)
+
+
+def explain(error: ValidationError, path: str, kind: str, keys: str) -> DrivecalError:
+    """One sentence out of pydantic's errors: the most specific one, with its key."""
+    errors = error.errors()
+    # A value that was valid as one branch of a union shows failures of the others;
+    # an unknown key or a unit message is what the user needs.
+    def rank(e):
+        # Among equals the deepest location is the most specific (a waveform table's key).
+        return {"extra_forbidden": 0, "value_error": 1, "missing": 2}.get(e["type"], 3), -len(e["loc"])
+
+    e = min(errors, key=rank)
+    where = _location(e["loc"])
+    if e["type"] == "extra_forbidden":
+        return DrivecalError(f"{path}: unknown key '{where}' in the {kind} file; the known keys are {keys}.")
+    if e["type"] == "missing":
+        return DrivecalError(f"{path}: '{where}' is missing; add it to the {kind} file.")
+    msg = e["msg"].removeprefix("Value error, ")
+    return DrivecalError(f"{path}: '{where}': {msg}.")
+
+
+def read_toml(path: str | Path) -> dict:
+    """A TOML file's table; a missing file or bad syntax is one DrivecalError sentence."""
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            return tomllib.load(f)
+    except FileNotFoundError:
+        raise DrivecalError(f"{path}: no such file; check the path.") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise DrivecalError(f"{path}: not valid TOML ({exc}); fix the syntax.") from None

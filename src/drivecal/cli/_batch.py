@@ -1,0 +1,96 @@
+"""``drivecal batch``: calibrate many motors, one bench file each, into one results table."""
+
+from __future__ import annotations
+
+import json
+from typing import TYPE_CHECKING
+
+import click
+
+from ._common import EXIT_COMPLETED_WITH_FAILURES, _console, _motor_option, _Positive
+
+if TYPE_CHECKING:
+    from rich.console import Console
+
+
+@click.command("batch")
+@click.argument("inputs", metavar="INPUT...", nargs=-1, required=True)
+@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False),
+              help="Results table (.parquet): one row per motor.")
+@_motor_option
+@click.option("--chunk", type=click.IntRange(min=1), default=256, show_default=True,
+              help="Motors per compiled call and per saved part of the table.")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Local helper processes, one per core (default: this machine's cores, at most one per "
+                   "chunk; 1: everything in this process).")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="Send chunks to a running dask.distributed scheduler, e.g. tcp://10.0.0.5:8786.")
+@click.option("--resume", is_flag=True, help="Continue an interrupted run of the same --out: skip motors already done.")
+@click.option("--measured-speed/--simulated-speed", default=True, show_default=True,
+              help="Use a measured w_m as an input on free segments (see `drivecal fit --help`).")
+@click.option("--outlier-z", type=_Positive(), default=5.0, show_default=True,
+              help="Robust z-score (median/MAD of the batch) beyond which a parameter flags a motor.")
+@click.option("--json", "as_json", is_flag=True, help="Print the run summary as JSON on stdout; no progress bar.")
+def batch(inputs, out_path, motor_path, chunk, workers, scheduler, resume, measured_speed, outlier_z, as_json):
+    """Calibrate many motors: one bench file per motor, one results table.
+
+    \b
+    INPUT is bench files, directories (searched recursively) or glob patterns.
+    The serial number is the file name, or the file's `serial` column.
+    Motors that share a plan shape are fitted together in one compiled call
+    per chunk. Every file gets a row: a file that fails validation or a fit
+    that does not converge is recorded with its reason and the run goes on.
+    Each chunk's rows are saved as they finish, so a killed run continues
+    with --resume and loses nothing. At the end every parameter is compared
+    with the batch (robust z-score) and outliers are flagged.
+
+    Exit status: 0 all calibrated, 1 completed with failures, 2 bad input.
+    """
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    if workers is not None and scheduler is not None:
+        raise click.UsageError("give --workers (local processes) or --scheduler (a dask cluster), not both")
+    from ..fleet import run_batch, tune_for_batch
+    from ..data import load_motor
+
+    tune_for_batch()  # this process is the batch: before JAX starts its threads
+    motor_file = load_motor(motor_path)
+    console = _console(as_json)
+    show = not as_json and console.is_terminal
+    columns = (TextColumn("calibrating"), BarColumn(), MofNCompleteColumn(),
+               TextColumn("{task.fields[rate]:.0f} motors/s"), TimeRemainingColumn())
+    with Progress(*columns, console=console, disable=not show, transient=True) as bar:
+        task = bar.add_task("batch", total=None, rate=0.0)
+        started = {}
+
+        def progress(done, total):
+            import time
+
+            now = time.perf_counter()
+            started.setdefault("t", now)
+            started.setdefault("done", done)
+            elapsed = now - started["t"]
+            rate = (done - started["done"]) / elapsed if elapsed > 0 else 0.0
+            bar.update(task, completed=done, total=total, rate=rate)
+
+        summary = run_batch(inputs, out_path, motor_file, chunk=chunk, workers=workers,
+                            scheduler=scheduler, resume=resume, measured_speed=measured_speed,
+                            outlier_z=outlier_z, progress=progress)
+    if as_json:
+        click.echo(json.dumps(summary.to_dict(), indent=2))
+    else:
+        _print_batch_summary(summary, console)
+    if summary.completed_with_failures:
+        raise SystemExit(EXIT_COMPLETED_WITH_FAILURES)
+
+
+def _print_batch_summary(summary, console: Console) -> None:
+    rate = (summary.total - summary.done_before) / summary.seconds if summary.seconds > 0 else 0.0
+    state = "[red]completed with failures[/red]" if summary.completed_with_failures else "[green]completed[/green]"
+    console.print(f"{state}: {summary.total} motors in {summary.out} ({summary.done_before} from an earlier run); "
+                  f"{summary.calibrated} calibrated, {summary.partial} partially, {summary.failed} failed "
+                  f"(see the status and reason columns); {summary.seconds:.1f} s, {rate:.0f} motors/s")
+    if summary.outliers:
+        console.print(f"fleet outliers ({len(summary.outliers)}): " + ", ".join(summary.outliers))
+    if summary.mismatch:
+        console.print(f"model mismatch suspected ({len(summary.mismatch)}): " + ", ".join(summary.mismatch))

@@ -1,0 +1,210 @@
+"""``drivecal design``: judge a plan before bench time; ``--optimize`` improves it (D-optimal)."""
+
+from __future__ import annotations
+
+import json
+from typing import TYPE_CHECKING
+
+import click
+
+from ..errors import DrivecalError, PlanError
+from ._common import _console, _fmt, _motor_option, _Positive
+
+if TYPE_CHECKING:
+    from rich.console import Console
+
+
+@click.command("design")
+@click.argument("plan_path", metavar="PLAN.toml", type=click.Path(dir_okay=False))
+@_motor_option
+@click.option("--noise", type=_Positive(), default=0.02, show_default=True,
+              help="Expected current-sensor noise standard deviation [A], for the predicted intervals.")
+@click.option("--json", "as_json", is_flag=True, help="Print the assessment JSON on stdout instead of tables.")
+@click.option("--optimize", is_flag=True,
+              help="Improve the plan's amplitudes, durations and bands for the smallest predicted confidence "
+                   "volume (D-optimal) within the voltage circle, the current limit and the time budget; "
+                   "needs --out.")
+@click.option("--budget", type=_Positive(), default=None,
+              help="With --optimize: total duration of the improved plan [s] (default: the plan's own).")
+@click.option("--out", "out_path", type=click.Path(dir_okay=False), default=None,
+              help="With --optimize: the improved plan file to write (TOML).")
+def design(plan_path, motor_path, noise, as_json, optimize, budget, out_path):
+    """Judge PLAN.toml before bench time: feasibility, identifiability, predicted intervals.
+
+    \b
+    On the nominal motor of --motor it checks
+      - the voltage circle |v_dq| <= v_dc/sqrt(3) of every sample,
+      - the predicted peak current against the plan's current_limit,
+      - that a free spin-up stays stable and under max_speed,
+    then the rank and condition number of the sensitivity Jacobian, dead and
+    weak parameters (with the reason), and the 95 % CI half-width each
+    parameter would get at the given noise. Exit status 2 when the plan is
+    infeasible or cannot identify every parameter.
+
+    With --optimize --out OPT.toml the plan is improved first (D-optimal: the
+    smallest predicted confidence volume, same segments, within the limits and
+    --budget) and written to OPT.toml; the predicted intervals before and
+    after and the volume ratio are printed.
+    """
+    if optimize:
+        _design_optimize(plan_path, motor_path, noise, as_json, budget, out_path)
+        return
+    if budget is not None or out_path is not None:
+        raise click.UsageError("--budget and --out go with --optimize")
+
+    from ..design import assess_design
+    from ..identify import check_requested
+    from ..model import Experiment
+    from ..data import load_motor
+    from ..plan import load_plan
+
+    plan = load_plan(plan_path)
+    motor_file = load_motor(motor_path)
+    if motor_file.estimate is not None:
+        check_requested(motor_file.names, Experiment.from_plan(plan), plan_path)
+    report = assess_design(plan, motor_file.motor, noise_sigma=noise, names=motor_file.names,
+                           delay_samples=motor_file.delay_samples)
+    if as_json:
+        click.echo(json.dumps(report.to_dict(), indent=2))
+    else:
+        _print_design(report, plan_path, _console(False))
+    if not report.ok:
+        what = []
+        if report.problems:
+            what.append(f"{len(report.problems)} feasibility problem(s)")
+        dead = report.identifiability.dead_params + report.identifiability.confounded_params
+        if dead:
+            what.append("cannot identify " + ", ".join(dead))
+        elif not report.identifiability.identifiable:
+            what.append("is ill-conditioned")
+        raise PlanError(f"{plan_path}: the plan {' and '.join(what)}; see the assessment above.")
+
+
+def _design_optimize(plan_path, motor_path, noise, as_json, budget, out_path) -> None:
+    from pathlib import Path
+
+    from ..design import load_plan_waveforms, optimize_plan
+    from ..identify import check_requested
+    from ..model import Experiment
+    from ..data import load_motor
+    from ..plan import write_plan
+
+    if out_path is None:
+        raise click.UsageError("--optimize needs --out OPT.toml, the improved plan file to write")
+    out = Path(out_path)
+    if out.is_dir() or not out.parent.is_dir():
+        raise DrivecalError(f"--out {out}: not a file in an existing directory; give a path like "
+                            "out/optimal_plan.toml.")
+    plan, specs = load_plan_waveforms(plan_path)
+    motor_file = load_motor(motor_path)
+    if motor_file.estimate is not None:
+        check_requested(motor_file.names, Experiment.from_plan(plan), plan_path)
+    console = _console(as_json)
+    with console.status("optimizing the plan (D-optimal: BFGS through the sensitivity Jacobian)..."):
+        result = optimize_plan(plan, motor_file.motor, waveforms_spec=specs, budget=budget,
+                               noise_sigma=noise, names=motor_file.names)
+    header = (f"D-optimal plan written by `drivecal design --optimize` from {plan_path}\n"
+              f"budget {result.budget:g} s; predicted confidence volume x{result.volume_ratio:.3g} "
+              f"(det of the covariance x{result.det_ratio:.3g}) on the nominal motor, noise {noise:g} A")
+    tables = {key: spec for key, spec in result.waveforms_after.items() if isinstance(spec, dict)}
+    write_plan(out, result.plan_after, tables, header=header)
+    if as_json:
+        click.echo(json.dumps({"plan": str(plan_path), "out": str(out), **result.to_dict()}, indent=2))
+        return
+    _print_optimal(result, plan_path, out, console)
+
+
+def _print_optimal(result, plan_path, out, console: Console) -> None:
+    from rich.markup import escape
+    from rich.table import Table
+
+    from ..physics import UNITS
+
+    before, after = result.plan_before, result.plan_after
+    console.print(f"[bold]{plan_path}[/bold]: D-optimal improvement on the nominal motor, budget "
+                  f"{result.budget:g} s, {result.iterations} BFGS steps ({escape(result.message)})")
+    seg_table = Table(title="segments before -> after", title_justify="left")
+    for col in ("segment", "rotor", "duration [ms]", "v_d [V]", "v_q [V]", "peak |i_dq| [A]", "peak w_m [rad/s]"):
+        seg_table.add_column(escape(col), justify="left" if col in ("segment", "rotor") else "right",
+                             no_wrap=not col.startswith("v_"))  # waveform texts may wrap
+
+    def level(spec):
+        if not isinstance(spec, dict):
+            return f"{float(spec):.3g}"
+        if spec["kind"] == "step":
+            return f"step {spec['level']:.3g}"
+        if spec["kind"] == "samples":
+            return "samples"
+        return f"{spec['kind']} {spec['offset']:+.3g}±{spec['amplitude']:.2g}"  # bands: in the written file
+
+    for sb, sa, pb, pa in zip(before.segments, after.segments, result.report_before.segments,
+                              result.report_after.segments):
+        row = [sa.name, "locked" if sa.locked else "free", f"{sb.duration * 1e3:.4g} -> {sa.duration * 1e3:.4g}"]
+        for axis in ("v_d", "v_q"):
+            row.append(escape(f"{level(result.waveforms_before[(sb.name, axis)])} -> "
+                              f"{level(result.waveforms_after[(sa.name, axis)])}"))
+        row.append(f"{pb.peak_current:.3g} -> {pa.peak_current:.3g}")
+        row.append("-" if sa.locked else f"{pb.peak_speed:.4g} -> {pa.peak_speed:.4g}")
+        seg_table.add_row(*row)
+    console.print(seg_table)
+    table = Table(title=f"predicted 95 % CI half-widths at noise {result.noise_sigma * 1e3:g} mA",
+                  title_justify="left")
+    table.add_column("plan", justify="left", no_wrap=True)
+    for n in result.names:
+        table.add_column(escape(f"{n} [{UNITS[n]}]"), justify="right", no_wrap=True)
+    table.add_column("log det Cov", justify="right", no_wrap=True)
+    table.add_row("before", *(f"±{x:.3g}" for x in result.ci95_before), f"{result.logdet_before:.2f}")
+    table.add_row("after", *(f"±{x:.3g}" for x in result.ci95_after), f"{result.logdet_after:.2f}")
+    table.add_row("after / before", *(f"{a / b:.3f}" for a, b in zip(result.ci95_after, result.ci95_before)),
+                  f"{result.logdet_after - result.logdet_before:+.2f}")
+    console.print(table)
+    verdict = "identifiable" if result.report_after.identifiability.identifiable else "NOT identifiable"
+    console.print(f"confidence volume ratio (after / before) {result.volume_ratio:.3g}; det(Cov) ratio "
+                  f"{result.det_ratio:.3g}; improved plan feasible, {verdict}, condition number "
+                  f"{result.report_after.identifiability.condition_number:.3g}")
+    if not result.improved:
+        console.print("[yellow]no better feasible plan was found: the input plan is written unchanged[/yellow]")
+    console.print(f"wrote {out}")
+
+
+def _print_design(report, plan_path, console: Console) -> None:
+    from rich.markup import escape
+    from rich.table import Table
+
+    from ..physics import UNITS
+
+    plan, ident = report.plan, report.identifiability
+    console.print(f"[bold]{plan_path}[/bold]: {len(plan.segments)} segment(s), {plan.num_samples} samples at "
+                  f"{plan.sample_rate:g} Hz; voltage limit {plan.voltage_limit:.2f} V, current limit "
+                  f"{plan.current_limit:g} A")
+    seg_table = Table(title="feasibility on the nominal motor", title_justify="left")
+    for col in ("segment", "rotor", "peak |i_dq| [A]", "at t [s]", "peak w_m [rad/s]"):
+        seg_table.add_column(escape(col), justify="left" if col in ("segment", "rotor") else "right", no_wrap=True)
+    for s in report.segments:
+        seg_table.add_row(s.name, "locked" if s.locked else "free", f"{s.peak_current:.3g}",
+                          f"{s.peak_current_time:.4g}", "-" if s.locked else f"{s.peak_speed:.4g}")
+    console.print(seg_table)
+    for p in report.problems:
+        console.print(f"  [red]problem[/red]: {p}")
+    verdict = "[green]identifiable[/green]" if ident.identifiable else "[red]NOT identifiable[/red]"
+    console.print(f"identifiability: rank {ident.rank}/{len(ident.names)}, condition number "
+                  f"{ident.condition_number:.3g} -> {verdict}")
+    table = Table(title=f"predicted 95 % intervals at noise {ident.noise_sigma * 1e3:g} mA", title_justify="left")
+    for col in ("parameter", "unit", "nominal", "± 95 % CI", "rel. [%]", "identifiable"):
+        justify = "left" if col in ("parameter", "unit", "identifiable") else "right"
+        table.add_column(escape(col), justify=justify, no_wrap=True)
+    for i, n in enumerate(ident.names):
+        nominal = float(getattr(report.motor, n))
+        half = ident.predicted_ci95[i]
+        relative = f"{100 * half / abs(nominal):.3g}" if nominal != 0 else "-"
+        if n not in ident.fit_names:
+            table.add_row(n, UNITS[n], _fmt(nominal), "-", "-", "[red]no[/red]")
+        elif n in ident.weak_params:
+            table.add_row(n, UNITS[n], _fmt(nominal), f"{half:.3g}", relative, "[yellow]weak[/yellow]")
+        else:
+            table.add_row(n, UNITS[n], _fmt(nominal), f"{half:.3g}", relative, "yes")
+    console.print(table)
+    for n in ident.names:
+        if n in ident.reasons:
+            colour = "yellow" if n in ident.fit_names else "red"
+            console.print(f"  [{colour}]{n}[/{colour}]: {escape(ident.reasons[n])}")

@@ -1,0 +1,153 @@
+"""``drivecal fit``: calibrate one motor from a bench file."""
+
+from __future__ import annotations
+
+import json
+from typing import TYPE_CHECKING
+
+import click
+
+from ..errors import DrivecalError
+from ._common import _console, _fmt, _motor_option, _Positive
+
+if TYPE_CHECKING:
+    from rich.table import Table
+
+    from ..results import Calibration
+
+
+def _fit_table(cal: Calibration) -> Table:
+    from rich.markup import escape
+    from rich.table import Table
+
+    from ..physics import UNITS
+
+    table = Table(title=f"{cal.source}: {cal.message}, {int(cal.iterations)} LM steps, "
+                        f"sigma_hat {float(cal.sigma_hat) * 1e3:.3f} mA", title_justify="left")
+    for col in ("parameter", "unit", "prior", "estimate", "std err", "95 % CI", "rel. CI [%]"):
+        justify = "left" if col in ("parameter", "unit", "95 % CI") else "right"
+        table.add_column(escape(col), justify=justify, no_wrap=True)
+    for i, n in enumerate(cal.names):
+        prior = _fmt(float(getattr(cal.prior, n)))
+        if cal.identifiable[i]:
+            half = 0.5 * (cal.ci95[i, 1] - cal.ci95[i, 0])
+            table.add_row(n, UNITS[n], prior, _fmt(cal.estimate[i]), f"{cal.se[i]:.3g}",
+                          f"[{_fmt(cal.ci95[i, 0])}, {_fmt(cal.ci95[i, 1])}]", f"±{100 * half / abs(cal.estimate[i]):.3f}")
+        else:
+            table.add_row(n, UNITS[n], prior, f"[dim]{_fmt(cal.estimate[i])} (prior)[/dim]", "-",
+                          "[red]not identifiable[/red]", "-")
+    return table
+
+
+@click.command("fit")
+@click.argument("bench_path", metavar="BENCH", type=click.Path(dir_okay=False))
+@_motor_option
+@click.option("--measured-speed/--simulated-speed", default=True, show_default=True,
+              help="On free segments with a w_m column, use the measured speed as an input (J and B not needed); "
+                   "--simulated-speed integrates the speed from J and B of the motor file instead.")
+@click.option("--noise", type=_Positive(), default=None,
+              help="The current sensor's noise standard deviation [A], if known: a sigma_hat well above it "
+                   "is reported as model mismatch. Without it only the whiteness of the residuals is judged.")
+@click.option("--estimate", "estimate", default=None, metavar="NAMES",
+              help="Comma-separated parameters to estimate, replacing the motor file's 'estimate', e.g. "
+                   "R,Ld,Lq,lambda_m,v_dead,offset_d,offset_q (bench effects: v_dead, offset_d, offset_q, "
+                   "offset_a, offset_b, alpha_R).")
+@click.option("--delay", "delay_samples", type=click.IntRange(0, 100), default=None,
+              help="The inverter's PWM/computation delay [samples], replacing the motor file's 'delay_samples'.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
+              help="Directory for report.json, report.html and the PNG figures (created if missing).")
+@click.option("--json", "as_json", is_flag=True, help="Print the result JSON on stdout instead of the table.")
+def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_samples, out_dir, as_json):
+    """Calibrate R, Ld, Lq, lambda_m from a bench file (.csv, .parquet or .mat).
+
+    \b
+    The file holds one row per sample: segment, locked (0/1), t [s],
+    v_d, v_q [V], i_d, i_q [A], optional w_m [rad/s] and temperature [degC];
+    or phase columns i_a, i_b, (i_c), v_a, v_b, (v_c) with theta_e or
+    theta_m [rad].
+    The motor file's values are the starting point and the prior; a parameter
+    the recording cannot identify is held there and reported as such. Bench
+    effects (dead time, sensor offsets, temperature coefficient) are fitted
+    jointly when named in --estimate or the motor file's 'estimate'.
+    """
+    from rich.markup import escape
+
+    from ..data import load_bench
+    from ..diagnose import check_saturation
+    from ..fitting import fit
+    from ..identify import check_requested
+    from ..data import load_motor
+    from ..report import build_result
+    from ..results import Status
+
+    motor_file = load_motor(motor_path)
+    if estimate is not None:
+        motor_file = motor_file.model_copy(update={"estimate": _estimate_names(estimate)})
+    if delay_samples is not None:
+        motor_file = motor_file.model_copy(update={"delay_samples": delay_samples})
+    prior = motor_file.motor
+    bench = load_bench(bench_path, pole_pairs=float(prior.pole_pairs), nominal_R=float(prior.R))
+    experiment = bench.experiment(measured_speed=measured_speed, delay_samples=motor_file.delay_samples)
+    if motor_file.estimate is not None:
+        check_requested(motor_file.names, experiment, bench_path)
+    console = _console(as_json)
+    with console.status("checking identifiability and fitting..."):
+        cal = fit(bench, prior, names=motor_file.names, measured_speed=measured_speed,
+                  delay_samples=motor_file.delay_samples)
+        saturation = check_saturation(bench, prior)
+        payload = build_result(cal, bench, experiment=experiment, noise_sigma=noise, input_path=bench_path,
+                               motor_file=motor_path, measured_speed=measured_speed and bench.has_measured_speed,
+                               saturation=saturation.to_dict() if saturation.tested else None)
+        if out_dir is not None:
+            written = _write_fit_outputs(cal, payload, out_dir)
+    if as_json:
+        click.echo(json.dumps(payload, indent=2))
+        return
+    ident = cal.identifiability
+    verdict = "[green]identifiable[/green]" if ident.identifiable else "[red]NOT fully identifiable[/red]"
+    speed = "measured speed as input" if payload["measured_speed"] else "speed simulated from J and B"
+    console.print(f"identifiability: rank {ident.rank}/{len(ident.names)}, condition number "
+                  f"{ident.condition_number:.3g} -> {verdict}; {speed}")
+    for name, why in ident.reasons.items():
+        console.print(f"  [red]{name}[/red]: {why}")
+    console.print(_fit_table(cal))
+    verdict = payload["verdict"]
+    colour = "green" if verdict["status"] == Status.CALIBRATED.key else "red"
+    console.print(f"verdict: [{colour}]{escape(verdict['headline'])}[/{colour}]")
+    for line in verdict.get("details", []):
+        console.print(f"  {escape(line)}")
+    for line in (payload["saturation"] or {}).get("findings", []):
+        colour = "red" if "saturates" in line else "green"
+        console.print(f"saturation check: [{colour}]{escape(line)}[/{colour}]")
+    if out_dir is not None:
+        console.print(f"wrote {len(written)} files to {out_dir}/: " + ", ".join(p.name for p in written))
+
+
+def _estimate_names(text: str) -> tuple[str, ...]:
+    from ..physics import ESTIMABLE
+
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    unknown = [n for n in names if n not in ESTIMABLE]
+    if unknown or not names:
+        raise DrivecalError(f"--estimate: unknown parameter(s) {', '.join(unknown) or '(none given)'}; "
+                            f"choose from {', '.join(ESTIMABLE)}.")
+    return names
+
+
+def _write_fit_outputs(cal, payload, out_dir):
+    from .._io import prepare_output_dir, save_figure, write_json
+    from ..report import plots, write_html_report
+
+    out = prepare_output_dir(out_dir)
+    written = []
+    figures = {
+        "convergence.png": plots.convergence_figure(cal),
+        "estimates.png": plots.estimates_figure(cal),
+        "identifiability.png": plots.identifiability_figure({cal.source: cal.identifiability}),
+    }
+    for name, fig in figures.items():
+        save_figure(fig, out / name)
+        written.append(out / name)
+    write_json(out / "report.json", payload)
+    write_html_report(payload, out / "report.html")
+    return written + [out / "report.json", out / "report.html"]

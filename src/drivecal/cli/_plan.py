@@ -1,0 +1,106 @@
+"""``drivecal plan``: design a feasible, identifiable bench plan for a motor."""
+
+from __future__ import annotations
+
+import json
+from typing import TYPE_CHECKING
+
+import click
+
+from ..errors import DrivecalError
+from ._common import _console, _fmt, _motor_option, _Positive
+
+if TYPE_CHECKING:
+    from rich.console import Console
+
+
+@click.command("plan")
+@_motor_option
+@click.option("--vdc", type=_Positive(), required=True, help="The bench's DC-link voltage [V]; segments stay inside "
+              "the voltage circle v_dc/sqrt(3).")
+@click.option("--imax", type=_Positive(), required=True, help="The bench's current limit [A] (peak |i_dq|).")
+@click.option("--max-speed", type=_Positive(), default=None,
+              help="Highest mechanical speed allowed in the free spin-up [rad/s]. Default: the no-load speed "
+                   "the voltage allows.")
+@click.option("--budget", type=_Positive(), default=None, help="Longest total plan duration [s].")
+@click.option("--sample-rate", type=_Positive(), default=None,
+              help="The bench's sample rate [Hz]. Default: chosen from the motor's time constants.")
+@click.option("--noise", type=_Positive(), default=None,
+              help="Expected current-sensor noise standard deviation [A], for the predicted intervals. "
+                   "Default: 0.2 % of --imax.")
+@click.option("--json", "as_json", is_flag=True, help="Print the plan and its assessment as JSON on stdout.")
+@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False),
+              help="Plan file to write (TOML, the format `drivecal design` and `simulate` read).")
+def plan_command(motor_path, vdc, imax, max_speed, budget, sample_rate, noise, as_json, out_path):
+    """Design a bench plan for the motor: feasible, identifiable, scaled to it.
+
+    \b
+    Three segments, from the nominal motor of --motor and the bench limits:
+      - locked d-step and q-step: steady current half of --imax (v = i*R,
+        inside the voltage circle), 6 electrical time constants L/R long;
+      - free spin-up on v_q: peak speed under 80 % of --max-speed (and of
+        the no-load speed), a few mechanical time constants long;
+      - sample rate: >= 10 samples per electrical time constant and
+        <= 0.1 electrical rad per sample.
+    The plan is judged like `drivecal design` (predicted peaks, rank,
+    predicted 95 % CI half-widths) and scaled down until it is feasible.
+    Exit status 2 when no feasible, identifiable plan exists.
+    """
+    from pathlib import Path
+
+    from ..design import auto_design
+    from ..data import load_motor
+    from ..plan import write_plan
+
+    out = Path(out_path)
+    if out.is_dir() or not out.parent.is_dir():
+        raise DrivecalError(f"--out {out}: not a file in an existing directory; give a path like "
+                            "plans/motor.toml.")
+    motor_file = load_motor(motor_path)
+    report = auto_design(motor_file.motor, v_dc=vdc, current_limit=imax, max_speed=max_speed,
+                         budget=budget, sample_rate=sample_rate, noise_sigma=noise)
+    plan = report.plan
+    header = (f"drivecal plan: auto-plan for {motor_file.source}\n"
+              f"v_dc {vdc:g} V, current limit {imax:g} A, max speed "
+              f"{'-' if max_speed is None else f'{max_speed:g} rad/s'}, budget "
+              f"{'-' if budget is None else f'{budget:g} s'}")
+    write_plan(out, plan, header=header)
+    if as_json:
+        click.echo(json.dumps({"plan": str(out), "sample_rate": plan.sample_rate, "num_samples": plan.num_samples,
+                               "duration": sum(s.duration for s in plan.segments),
+                               "segments": [{"name": s.name, "locked": s.locked, "duration": s.duration,
+                                             "v_d": float(s.v_d), "v_q": float(s.v_q)} for s in plan.segments],
+                               "assessment": report.to_dict()}, indent=2))
+    else:
+        _print_plan(report, out, _console(False))
+
+
+def _print_plan(report, out, console: Console) -> None:
+    from rich.markup import escape
+    from rich.table import Table
+
+    from ..physics import UNITS
+
+    plan, ident = report.plan, report.identifiability
+    duration = sum(s.duration for s in plan.segments)
+    console.print(f"[bold]wrote {out}[/bold]: {len(plan.segments)} segments, {duration:.4g} s, {plan.num_samples} "
+                  f"samples at {plan.sample_rate:g} Hz; voltage limit {plan.voltage_limit:.4g} V, current limit "
+                  f"{plan.current_limit:g} A")
+    seg_table = Table(title="segments, predicted on the nominal motor", title_justify="left")
+    for col in ("segment", "rotor", "duration [s]", "v_d [V]", "v_q [V]", "peak |i_dq| [A]", "peak w_m [rad/s]"):
+        seg_table.add_column(escape(col), justify="left" if col in ("segment", "rotor") else "right", no_wrap=True)
+    for seg, pred in zip(plan.segments, report.segments):
+        seg_table.add_row(seg.name, "locked" if seg.locked else "free", f"{seg.duration:.4g}", f"{float(seg.v_d):.4g}",
+                          f"{float(seg.v_q):.4g}", f"{pred.peak_current:.3g}",
+                          "-" if pred.locked else f"{pred.peak_speed:.4g}")
+    console.print(seg_table)
+    console.print(f"identifiability: rank {ident.rank}/{len(ident.names)}, condition number "
+                  f"{ident.condition_number:.3g} -> [green]identifiable[/green]")
+    table = Table(title=f"predicted 95 % intervals at noise {ident.noise_sigma * 1e3:.4g} mA", title_justify="left")
+    for col in ("parameter", "unit", "nominal", "± 95 % CI", "rel. [%]"):
+        table.add_column(escape(col), justify="left" if col in ("parameter", "unit") else "right", no_wrap=True)
+    for i, n in enumerate(ident.names):
+        nominal = float(getattr(report.motor, n))
+        half = ident.predicted_ci95[i]
+        table.add_row(n, UNITS[n], _fmt(nominal), f"{half:.3g}", f"{100 * half / nominal:.3g}")
+    console.print(table)

@@ -1,0 +1,98 @@
+"""Motor files (TOML), validated with pydantic: the nominal motor, the fit's prior, and what to estimate.
+
+Every physical value is either a plain number in SI units or a string with a
+unit, e.g. ``R = "0.45 ohm"``, ``Ld = "3.2 mH"``. A wrong key or a unit of the
+wrong kind is refused with one sentence naming the file, the key and the fix.
+The schema is documented in the README ("Motor files") and exemplified in
+``examples/``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from ..errors import DrivecalError
+from ..physics import DEFAULT_MOTOR, ESTIMABLE, ESTIMATED, MotorParams
+from .._units import StrictModel, explain, quantity, read_toml
+
+
+class MotorSpec(StrictModel):
+    R: quantity("resistance") = float(DEFAULT_MOTOR.R)
+    Ld: quantity("inductance") = float(DEFAULT_MOTOR.Ld)
+    Lq: quantity("inductance") = float(DEFAULT_MOTOR.Lq)
+    lambda_m: quantity("flux") = float(DEFAULT_MOTOR.lambda_m)
+    pole_pairs: int = int(DEFAULT_MOTOR.pole_pairs)
+    J: quantity("inertia") = float(DEFAULT_MOTOR.J)
+    B: quantity("friction") = float(DEFAULT_MOTOR.B)
+    T_load: quantity("torque") = 0.0
+    v_dead: quantity("voltage") = 0.0
+    i_dead: quantity("current") = float(DEFAULT_MOTOR.i_dead)
+    offset_d: quantity("current") = 0.0
+    offset_q: quantity("current") = 0.0
+    offset_a: quantity("current") = 0.0
+    offset_b: quantity("current") = 0.0
+    alpha_R: quantity("temperature coefficient") = float(DEFAULT_MOTOR.alpha_R)
+    T_ref: quantity("temperature") = float(DEFAULT_MOTOR.T_ref)
+    delay_samples: int = Field(default=0, ge=0, le=100)
+    estimate: list[Literal["R", "Ld", "Lq", "lambda_m", "v_dead", "offset_d", "offset_q", "offset_a", "offset_b",
+                           "alpha_R"]] | None = None
+
+
+class MotorFile(BaseModel):
+    """A loaded motor file: the nominal motor (the fit's prior) and what to estimate.
+
+    Attributes:
+        motor: nominal values of all parameters (bench effects included), SI.
+        estimate: the parameters the user asks for, or None for "R, Ld, Lq,
+            lambda_m, holding any the data cannot identify at the nominal
+            value". Bench effects (v_dead, offsets, alpha_R) are estimated
+            only when listed here.
+        delay_samples: the inverter's PWM/computation delay (samples).
+        source: the file path, for messages.
+    """
+
+    model_config = ConfigDict(frozen=True, arbitrary_types_allowed=True)
+    motor: MotorParams
+    estimate: tuple[str, ...] | None = None
+    delay_samples: int = 0
+    source: str = "default motor"
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The parameters to estimate, in drivecal's order."""
+        if self.estimate is None:
+            return ESTIMATED
+        return tuple(n for n in ESTIMABLE if n in self.estimate)
+
+
+def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
+    """A :class:`MotorFile` from the TOML table ``data`` (missing keys take the default motor's values)."""
+    try:
+        spec = MotorSpec.model_validate(data)
+    except ValidationError as exc:
+        raise explain(exc, source, "motor", ", ".join(MotorSpec.model_fields)) from None
+    values = spec.model_dump(exclude={"estimate", "delay_samples"})
+    signed = ("T_load", "offset_d", "offset_q", "offset_a", "offset_b", "T_ref")
+    for name, value in values.items():
+        if not math.isfinite(value):
+            raise DrivecalError(f"{source}: '{name}' must be a finite number, got {value!r}.")
+        if name == "v_dead" and value < 0:
+            raise DrivecalError(f"{source}: 'v_dead' is a voltage magnitude and must be >= 0, got {value!r}.")
+        if not value > 0 and name not in signed + ("v_dead",):
+            raise DrivecalError(f"{source}: '{name}' must be a positive number, got {value!r}.")
+    motor = MotorParams(**{k: float(v) for k, v in values.items()})
+    estimate = None if spec.estimate is None else tuple(spec.estimate)
+    if estimate is not None and not estimate:
+        raise DrivecalError(f"{source}: 'estimate' is empty; list at least one of R, Ld, Lq, lambda_m.")
+    return MotorFile(motor=motor, estimate=estimate, delay_samples=spec.delay_samples, source=source)
+
+
+def load_motor(path: str | Path | None) -> MotorFile:
+    """Read a motor TOML file; ``None`` gives the default 48 V motor."""
+    if path is None:
+        return MotorFile(motor=DEFAULT_MOTOR)
+    return motor_from_dict(read_toml(path), str(path))
