@@ -42,13 +42,12 @@ import optimistix as optx
 
 from ._assess import MAX_ELECTRICAL_STEP, DesignReport, assess_design, predict_segments
 from ._design_space import _AXES, Spec, _Param, _build_param, infer_waveforms
-# Re-exported by drivecal.design (and the 0.1 path drivecal.optimal) from here.
-from ._design_space import MIN_DURATION_FRACTION, load_plan_waveforms  # noqa: F401
 from ..errors import DrivecalError, PlanError
 from ..model import Experiment, predict_currents, simulate_states
 from ..identify import assess_identifiability, sensitivity_jacobian
 from ..physics import ESTIMATED, MotorParams
 from ..plan import Plan
+from ..results import solver_code, solver_message
 
 #: Peak current and speed are pushed to at most this fraction of their limits in the smooth problem.
 LIMIT_MARGIN = 0.995
@@ -364,7 +363,7 @@ def optimize_plan(
     u = np.asarray(sol.value)
     iterations = int(sol.stats["num_steps"])
     converged = bool(sol.result == optx.RESULTS.successful)
-    message = "converged" if converged else (optx.RESULTS._index_to_message[int(sol.result._value)] or "stopped")
+    message = "converged" if converged else (solver_message(solver_code(sol.result)) or "stopped")
 
     try:
         candidate, cand_specs = _repair(par, u, np.asarray(scales(jnp.asarray(u))), motor)

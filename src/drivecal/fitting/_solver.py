@@ -20,6 +20,7 @@ import optimistix as optx
 
 from ..model import Experiment, cached_call, current_parts, join_current_parts, predict_current_parts
 from ..physics import MotorParams, from_search, to_search
+from ..results import solver_code
 from ._initial import start_from_data
 from ._options import FitOptions
 
@@ -246,7 +247,7 @@ def _solve_one(currents, z0, prior, experiment, names, options, record) -> _Solv
         sigma_hat=jnp.sqrt(s2),
         rss=rss,
         iterations=sol.stats["num_steps"],
-        result_code=sol.result._value,
+        result_code=solver_code(sol.result),
         converged=ok,
         accepted=sol.state.accepted if record else None,
         residuals=join_current_parts(experiment, sol.state.f_info.residual),
@@ -376,7 +377,7 @@ def _solve_staged(currents, start, prior, experiment, names, fit_names, options:
         return jax.device_get(_solve_batch(currents, start, prior, experiment, names, fit_names, one))
     quick = dataclasses.replace(options, max_steps=first, first_pass_steps=None)
     solved = jax.device_get(_solve_batch(currents, start, prior, experiment, names, fit_names, quick))
-    again = np.flatnonzero(solved.result_code == optx.RESULTS.nonlinear_max_steps_reached._value)
+    again = np.flatnonzero(solved.result_code == solver_code(optx.RESULTS.nonlinear_max_steps_reached))
     if again.size == 0:
         return solved
     size = _straggler_bucket(again.size, b)

@@ -12,17 +12,18 @@ from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
 from .._stats import t_ppf
 from ..identify import Identifiability
 from ..physics import ADDITIVE_SCALE, FIXED, NUISANCE, UNITS, MotorParams
+from ._status import solver_message
 
 
 def result_message(code: int, converged: bool) -> str:
+    """How a fit ended, in words: 'converged', or optimistix's message for ``code``."""
     if converged:
         return "converged"
-    message = optx.RESULTS._index_to_message[int(code)]
+    message = solver_message(code)
     return message or "the covariance is not finite: the data does not constrain the fitted parameters"
 
 

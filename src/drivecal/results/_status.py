@@ -64,3 +64,20 @@ class Status(enum.Enum):
 
     def __str__(self) -> str:
         return self.label
+
+
+# optimistix reports how a solve ended as an equinox enumeration item; drivecal keeps it as a plain integer
+# (it crosses vmap, numpy and the result JSON). equinox has no public integer or index -> message for its items,
+# so these two functions are the only code that reads its internals.
+
+
+def solver_code(result) -> object:
+    """The integer code (an array under ``jit``/``vmap``) of an ``optimistix.RESULTS`` item."""
+    return result._value
+
+
+def solver_message(code: int) -> str:
+    """The message optimistix gives for result ``code`` ('' for success)."""
+    import optimistix as optx
+
+    return optx.RESULTS._index_to_message[int(code)]
