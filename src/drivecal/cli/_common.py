@@ -19,12 +19,15 @@ from typing import TYPE_CHECKING
 import click
 
 from .._version import __version__
+from .._status import Status
 from ..errors import DrivecalError
 
 if TYPE_CHECKING:
     from rich.console import Console
 
-EXIT_BAD_INPUT = 2
+#: Exit statuses: bad input (the same as a refused file), and `batch` finishing with some motors not calibrated.
+#: `drivecal fit` exits with its verdict's `Status.exit_code` (0 only when calibrated).
+EXIT_BAD_INPUT = Status.INVALID.exit_code
 EXIT_COMPLETED_WITH_FAILURES = 1
 
 #: name -> (module in this package, command object in it, the first paragraph of its help).

@@ -69,6 +69,14 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
     the recording cannot identify is held there and reported as such. Bench
     effects (dead time, sensor offsets, temperature coefficient) are fitted
     jointly when named in --estimate or the motor file's 'estimate'.
+
+    \b
+    Exit status: the verdict's, so a test-station script can gate on it:
+      0  calibrated
+      3  partially calibrated (some parameters not identifiable by the plan)
+      4  model mismatch suspected (the intervals are not to be trusted)
+      5  not converged
+      2  bad input (the file, an option or the motor file; one sentence on stderr)
     """
     from rich.markup import escape
 
@@ -100,9 +108,10 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
                                saturation=saturation.to_dict() if saturation.tested else None)
         if out_dir is not None:
             written = _write_fit_outputs(cal, payload, out_dir)
+    status = Status(payload["verdict"]["status"])
     if as_json:
         click.echo(json.dumps(payload, indent=2))
-        return
+        return status.exit_code
     ident = cal.identifiability
     verdict = "[green]identifiable[/green]" if ident.identifiable else "[red]NOT fully identifiable[/red]"
     speed = "measured speed as input" if payload["measured_speed"] else "speed simulated from J and B"
@@ -112,7 +121,7 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
         console.print(f"  [red]{name}[/red]: {why}")
     console.print(_fit_table(cal))
     verdict = payload["verdict"]
-    colour = "green" if verdict["status"] == Status.CALIBRATED.key else "red"
+    colour = "green" if status is Status.CALIBRATED else "red"
     console.print(f"verdict: [{colour}]{escape(verdict['headline'])}[/{colour}]")
     for line in verdict.get("details", []):
         console.print(f"  {escape(line)}")
@@ -121,6 +130,7 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
         console.print(f"saturation check: [{colour}]{escape(line)}[/{colour}]")
     if out_dir is not None:
         console.print(f"wrote {len(written)} files to {out_dir}/: " + ", ".join(p.name for p in written))
+    return status.exit_code
 
 
 def _estimate_names(text: str) -> tuple[str, ...]:

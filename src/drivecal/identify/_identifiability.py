@@ -330,6 +330,11 @@ def assess_identifiability(
     """
     experiment = model_experiment(experiment, motor, names)
     jac = np.asarray(sensitivity_jacobian(motor, experiment, names))
+    if not np.all(np.isfinite(jac)):
+        raise DrivecalError(
+            "the motor's predicted currents are not finite on this experiment (the nominal values "
+            f"{', '.join(f'{n} = {float(getattr(motor, n)):.4g}' for n in names)} make the model blow up): "
+            "check the motor file's values and units against the datasheet.")
     # d I / d ln(theta) (per additive step for offsets and dead time): comparable across parameters.
     scale = np.asarray(search_scale(motor, names)[1])
     jac_scaled = jac * scale

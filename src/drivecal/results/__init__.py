@@ -9,7 +9,7 @@ from ._calibration import Calibration, result_message
 from ._html import escape, format_number, summary_html
 from ._record import (NOT_RECORDED, VERSIONED, bench_sha256, content_sha256, demo_document, file_sha256, load_result,
                       result_document, result_fits, segment_residuals, select_fit, software_versions)
-from ._status import Status, solver_code, solver_message
+from .._status import Status, solver_code, solver_message
 
 __all__ = ["NOT_RECORDED", "VERSIONED", "Calibration", "Status", "bench_sha256", "content_sha256", "demo_document",
            "escape", "file_sha256", "format_number", "load_result", "result_document", "result_fits",

@@ -16,7 +16,7 @@ import numpy as np
 from .._stats import t_ppf
 from ..identify import Identifiability
 from ..physics import ADDITIVE_SCALE, FIXED, NUISANCE, UNITS, MotorParams
-from ._status import solver_message
+from .._status import solver_message
 
 
 def result_message(code: int, converged: bool) -> str:
