@@ -12,7 +12,7 @@ import drivecal as dc
 from conftest import NOISE, true_vector
 from drivecal.fitting import equation_error_start
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 def _start(bench: dc.BenchData, prior: dc.MotorParams, measured_speed: bool = True) -> np.ndarray:

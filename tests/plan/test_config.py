@@ -9,7 +9,7 @@ import pytest
 
 import drivecal as dc
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 def test_example_default_plan_is_the_default_plan():

@@ -16,7 +16,7 @@ from drivecal.cli import main
 from drivecal.model import stack_experiments
 from drivecal.design import load_plan_waveforms, predicted_covariance
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 NOISE = 0.02  # A
 DRAWS = 200  # noise realisations per plan
 

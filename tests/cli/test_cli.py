@@ -88,7 +88,7 @@ def test_help_is_there_for_every_command(capsys):
     assert "--noise" in out and "[A]" in out
 
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 def test_design_of_the_seed_poor_plan_names_the_dead_parameters(capsys):
@@ -189,7 +189,7 @@ def test_version(capsys):
     assert capsys.readouterr().out == f"drivecal, version {__version__}\n"
 
 
-EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
+
 
 
 def test_fit_exit_status_is_the_verdicts(tmp_path, poor_bench, capsys):
@@ -199,14 +199,14 @@ def test_fit_exit_status_is_the_verdicts(tmp_path, poor_bench, capsys):
     codes = {s: s.exit_code for s in Status}
     assert codes[Status.CALIBRATED] == 0 and codes[Status.INVALID] == 2
     assert len(set(codes.values())) == len(codes)  # one status, one code
-    assert main(["fit", str(EXAMPLES_DIR / "bench.csv"), "--json"]) == 0  # calibrated
+    assert main(["fit", str(EXAMPLES / "bench.csv"), "--json"]) == 0  # calibrated
     assert json.loads(capsys.readouterr().out)["verdict"]["status"] == "calibrated"
     poor = poor_bench.save(tmp_path / "poor.csv")  # a locked q-step alone: Ld and lambda_m not identifiable
     assert main(["fit", str(poor), "--json"]) == Status.PARTIAL.exit_code == 3
     doc = json.loads(capsys.readouterr().out)
     assert doc["verdict"]["status"] == "partial"
     # A realistic inverter (a one-sample delay the default fit does not model): model mismatch.
-    assert main(["fit", str(EXAMPLES_DIR / "inverter_bench.csv")]) == Status.MISMATCH.exit_code == 4
+    assert main(["fit", str(EXAMPLES / "inverter_bench.csv")]) == Status.MISMATCH.exit_code == 4
 
 
 def test_a_fit_that_did_not_converge_exits_5():

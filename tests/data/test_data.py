@@ -215,7 +215,7 @@ def test_lambda_m_requested_without_free_segment(tmp_path, capsys):
 def test_bad_motor_file_via_cli(tmp_path, capsys):
     motor = tmp_path / "motor.toml"
     motor.write_text('R = "0.45 ohm"\nLd = "3.2 mA"\n')
-    code, err = run_cli(["design", Path(__file__).resolve().parents[1] / "examples" / "default_plan.toml",
+    code, err = run_cli(["design", Path(__file__).resolve().parents[2] / "examples" / "default_plan.toml",
                          "--motor", motor], capsys)
     assert_one_sentence(code, err, str(motor), "'Ld'", "inductance")
 

@@ -14,7 +14,7 @@ from drivecal import design as autoplan
 from helpers import corpus
 from drivecal.cli import main
 
-CORPUS = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "motors.csv"
+CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "motors.csv"
 needs_corpus = pytest.mark.skipif(not CORPUS.is_file(), reason=f"real-motor corpus {CORPUS} not present")
 
 

@@ -15,7 +15,7 @@ from drivecal.cli import main
 
 from conftest import NOISE, true_vector
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 @pytest.fixture(scope="session")
