@@ -14,7 +14,7 @@ from .._io import atomic_path, prepare_output_dir, save_figure, write_json
 from ..plan import plan_to_dict
 from ..results import load_result, result_fits, select_fit
 
-__all__ = ["AXES", "atomic_path", "load_result", "plan_to_dict", "prepare_output_dir", "result_fits", "save_figure",
-           "select_fit", "write_json", "CSS", "FIG_DPI", "MAX_BANDWIDTH_FRACTION", "AxisGains", "CurrentLoopDesign", "Spread",
-           "build_result", "design_current_loop", "figure_data_uri", "fit_section_html", "loop_metrics", "open_loop",
-           "pi_gains", "render_html", "segment_traces", "verdict_html", "write_html_report"]
+__all__ = ["AXES", "AxisGains", "CSS", "CurrentLoopDesign", "FIG_DPI", "MAX_BANDWIDTH_FRACTION", "Spread",
+           "atomic_path", "build_result", "design_current_loop", "figure_data_uri", "fit_section_html", "load_result",
+           "loop_metrics", "open_loop", "pi_gains", "plan_to_dict", "prepare_output_dir", "render_html", "result_fits",
+           "save_figure", "segment_traces", "select_fit", "verdict_html", "write_html_report", "write_json"]

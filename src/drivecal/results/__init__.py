@@ -11,7 +11,6 @@ from ._record import (NOT_RECORDED, VERSIONED, bench_sha256, content_sha256, dem
                       result_document, result_fits, segment_residuals, select_fit, software_versions)
 from .._status import Status, solver_code, solver_message
 
-__all__ = ["NOT_RECORDED", "VERSIONED", "Calibration", "Status", "bench_sha256", "content_sha256", "demo_document",
-           "escape", "file_sha256", "format_number", "load_result", "result_document", "result_fits",
-           "result_message", "segment_residuals", "select_fit", "software_versions", "solver_code", "solver_message",
-           "summary_html"]
+__all__ = ["Calibration", "NOT_RECORDED", "Status", "VERSIONED", "bench_sha256", "content_sha256", "demo_document",
+           "escape", "file_sha256", "format_number", "load_result", "result_document", "result_fits", "result_message",
+           "segment_residuals", "select_fit", "software_versions", "solver_code", "solver_message", "summary_html"]
