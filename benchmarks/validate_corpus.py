@@ -5,7 +5,7 @@ shared/data/README.md): a datasheet 10 % off the truth, an auto-plan on it
 (bench limits: the motor's V_dc, 1.5 x rated current, rated speed), the plan
 run on the Jaxonomy engine with the true motor plus sensor noise of 0.2 % of
 the current limit, a fit from the datasheet, and each of R, Ld, Lq, lambda_m
-compared with the truth in standard errors (drivecal.corpus has the details).
+compared with the truth in standard errors (tests/helpers/corpus.py has the details).
 
 Prints how many motors and estimates pass and the worst cases, and writes
 benchmarks/results/validate_corpus.json.
