@@ -9,7 +9,6 @@ new code imports from the sub-packages (or from ``drivecal`` itself).
 from __future__ import annotations
 
 import importlib
-import importlib.abc
 import importlib.machinery
 import sys
 import types
@@ -74,7 +73,9 @@ class _MovedModule(types.ModuleType):
         return fit(*args, **kwargs)
 
 
-class _Finder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+class _Finder:
+    """A meta-path finder and loader (duck-typed: importlib.abc costs ~20 ms to import at every start)."""
+
     def find_spec(self, fullname, path=None, target=None):
         package, _, leaf = fullname.rpartition(".")
         if package != "drivecal" or leaf not in MOVED:
@@ -83,8 +84,9 @@ class _Finder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
     def create_module(self, spec):
         leaf = spec.name.rpartition(".")[2]
-        new = ", ".join(f"drivecal.{t}" for t in MOVED[leaf])
-        warnings.warn(f"{spec.name} moved to {new}; import from there (or from drivecal) instead",
+        homes = dict.fromkeys(f"drivecal.{t.split('._')[0]}" for t in MOVED[leaf])  # the public sub-packages
+        warnings.warn(f"{spec.name} is gone since drivecal 0.2: import from {', '.join(homes)} "
+                      "(or from drivecal itself); the old path works for this release only",
                       DeprecationWarning, stacklevel=3)
         return _MovedModule(spec.name, MOVED[leaf])
 

@@ -1,3 +1,3 @@
 """drivecal's version (one place; the package, the result JSON and the CLI read it here)."""
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
