@@ -17,7 +17,7 @@ To share one diagram between sample rates, time is counted in sample periods
 
 with R and the pole pairs unchanged; currents and the rotor angle are the same
 functions of the sample index. The engine's adaptive solver still integrates
-the PMSM block; tests/test_autoplan.py checks it against
+the PMSM block; tests/design/test_autoplan.py checks it against
 :func:`drivecal.engine_bench` to the engine's tolerance. Each segment is
 simulated over a power-of-two number of samples (one compile per size) and
 cut to its length.

@@ -62,7 +62,7 @@ class DesignRun:
         return out
 
     def to_dict(self, truth: MotorParams, noise_sigma: float | None = None) -> dict[str, Any]:
-        """The full result JSON of this design (``record.build_result``) plus ``truth``.
+        """The full result JSON of this design (``drivecal.report.build_result``) plus ``truth``.
 
         The input hash is that of the synthetic bench data (there is no file).
         """

@@ -14,7 +14,7 @@ The criterion, kept simple on purpose so a reader can check it by hand:
      sensor noise, which is white; an unmodelled effect (a wrong R, saturation,
      dead time) leaves a smooth, autocorrelated trace.
    * a score test finds the signature of a bench effect the model left out
-     (dead time, sensor offsets, more delay; ``mismatch.py``) at family-wise
+     (dead time, sensor offsets, more delay; ``diagnose/_mismatch.py``) at family-wise
      level 1e-3: the detail names the effect and the fix.
    A sigma_hat well *below* the stated noise is reported as a note only.
 3. **partially calibrated: <names> not identifiable by this plan** when the

@@ -4,7 +4,7 @@ Unknowns are searched as ``z = ln(theta / theta_prior)`` so every parameter
 stays positive and every direction has the same scale (a raw ``ln(theta)``
 lets the first trust-region step jump to stiff, absurd motors). Bench effects
 that may be zero or negative (sensor offsets, dead-time voltage) are searched
-additively, ``theta = theta_prior + step * z`` (``motor.search_scale``). The whole
+additively, ``theta = theta_prior + step * z`` (``physics.search_scale``). The whole
 solve — optimistix LM, the Jacobian at the optimum, the covariance — is one
 ``jax.jit``-compiled function, ``vmap``-ped over datasets and starting points.
 

@@ -21,7 +21,7 @@ vectorised over the samples:
 Each estimate falls back to the prior where its data does not determine it
 (no excitation on that axis, no free segment) or where it comes out
 non-finite or more than a factor ``SPAN`` from the prior. It is only a start:
-the fit (``fit.py``) is what the calibration reports.
+the fit (``fitting._fit``) is what the calibration reports.
 """
 
 from __future__ import annotations

@@ -200,7 +200,7 @@ def _jacobian_in_one_pass(f):
 
 
 def _residual_fn(prior: MotorParams, experiment: Experiment, names: tuple[str, ...], currents: jnp.ndarray):
-    # The residuals stay in parts (i_d and i_q of each segment; see forward.predict_current_parts).
+    # The residuals stay in parts (i_d and i_q of each segment; see model.predict_current_parts).
     measured = current_parts(experiment, currents)
 
     @_jacobian_in_one_pass

@@ -181,7 +181,7 @@ def identifiability_report(jacobian: np.ndarray, names: tuple[str, ...], *, weak
     """jaxterity's ``identifiability_from_jacobian(jacobian, names, cond_max=COND_MAX)``, step for step.
 
     Importing ``jaxterity.sysid`` loads MuJoCo (1.5 s per process) for a few
-    lines of NumPy; tests/test_identify.py holds this copy equal to jaxterity's.
+    lines of NumPy; tests/identify/test_identify.py holds this copy equal to jaxterity's.
     """
     jac = np.asarray(jacobian, dtype=np.float64)
     if jac.ndim != 2:

@@ -16,7 +16,7 @@ axis. Everything ``jit``s, ``vmap``s and differentiates (``jax.jacfwd``).
 
 Integration: classical RK4 with one step per sample period, the input held
 between samples exactly as the inverter holds it. At 20 kHz and millisecond
-electrical time constants its error is ~1e-9 A (see tests/test_forward.py).
+electrical time constants its error is ~1e-9 A (see tests/model/test_forward.py).
 """
 
 from __future__ import annotations

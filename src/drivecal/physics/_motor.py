@@ -11,7 +11,7 @@ theta_m]`` (A, A, rad/s, rad), input ``v = [v_d, v_q]`` (V), electrical speed
 
 With the rotor locked (standstill bench) ``dw_m/dt = dtheta_m/dt = 0``.
 These are exactly the equations of ``jaxonomy.library.drives.PMSM``; the
-conformance test in ``tests/test_motor.py`` holds the two together.
+conformance test in ``tests/physics/test_motor.py`` holds the two together.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The self-contained HTML report: one file, figures embedded as PNG data URIs.
 
 ``write_html_report(result, path)`` takes only the saved-result JSON dict
-(one fit from ``record.build_result``, or a demo document with ``designs``),
+(one fit from ``drivecal.report.build_result``, or a demo document with ``designs``),
 so a saved JSON renders the same page as the run that saved it. The page
 fetches nothing from the network and runs no script. Its only
 run-dependent part is the time stamp in ``<time id="generated">``; the
@@ -217,7 +217,7 @@ def write_html_report(result: Mapping[str, Any], path: str | os.PathLike, *, gen
 
     Args:
         result: the result JSON as a dict (``json.load`` of a saved file, or
-            ``record.build_result(...)`` passed through JSON).
+            ``drivecal.report.build_result(...)`` passed through JSON).
         path: the ``.html`` file to write.
         generated: time stamp to print (default: now).
     """
