@@ -174,3 +174,19 @@ def test_motor_file_bench_effects():
         dc.motor_from_dict({"delay_samples": -1}, "m.toml")
     with pytest.raises(dc.DrivecalError, match="v_dead"):
         dc.motor_from_dict({"v_dead": "0.4 A"}, "m.toml")
+
+
+def test_the_delay_advice_says_which_way(truth, guess, clean_default, default_bench):
+    """Two-sided: a fit that assumes too much delay is told 'lower', one that assumes too little 'raise'."""
+    delayed = dc.engine_bench(dc.default_plan(), truth, delay_samples=1).add_noise(NOISE, 5)
+    cases = [(default_bench, 1, "less", "lower 'delay_samples'"),  # no delay on the bench, one assumed
+             (delayed, 0, "more", "raise 'delay_samples'")]  # one sample on the bench, none assumed
+    for bench, assumed, word, fix in cases:
+        cal = dc.fit(bench, guess, delay_samples=assumed, measured_speed=False)
+        doc = dc.build_result(cal, bench, experiment=bench.experiment(measured_speed=False, delay_samples=assumed),
+                              noise_sigma=NOISE)
+        (delay,) = [e for e in doc["residuals"]["unmodelled_effects"] if e["effect"] == "delay"]
+        assert delay["suspected"], delay
+        assert f"{word} PWM/computation delay than the {assumed} sample(s) assumed" in delay["message"]
+        assert fix in delay["message"]
+        assert doc["verdict"]["status"] == "mismatch"

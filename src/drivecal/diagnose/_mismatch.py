@@ -1,7 +1,7 @@
 """Which unmodelled bench effect do the residuals point to? Score tests.
 
 After a fit, each bench effect the model left out (inverter dead time, current
-sensor offsets, one more sample of PWM delay) is tested with a Lagrange
+sensor offsets, a PWM delay other than the one assumed) is tested with a Lagrange
 multiplier (score) test: does the effect's signature — its sensitivity column
 ``d(predicted currents)/d(effect)`` at the fitted motor, made orthogonal to
 the fitted parameters' columns — explain more of the residuals than noise
@@ -9,7 +9,10 @@ would? Under a correct model the statistic
 
     S = || P r ||^2 / sigma_hat^2,   P the projection onto that signature,
 
-is chi-squared with as many degrees of freedom as the effect has parameters.
+is chi-squared with as many degrees of freedom as the effect has parameters
+(two-sided: an effect larger or smaller than modelled raises it alike; for the
+delay the residual's sign along the signature says which, and the advice is
+"raise" or "lower" accordingly).
 An effect whose p-value falls below ``ALPHA`` (Bonferroni over the effects
 tested) is named in the verdict with the fix: add it to ``estimate``.
 """
@@ -43,15 +46,18 @@ def _orthogonal_part(columns: np.ndarray, basis: np.ndarray) -> np.ndarray:
     return columns - basis @ coef
 
 
-def _score(residual: np.ndarray, signature: np.ndarray, fitted: np.ndarray, sigma_hat: float) -> tuple[float, int]:
-    """Score statistic of ``signature`` (m, k) columns against the residual, and its degrees of freedom."""
+def _score(residual: np.ndarray, signature: np.ndarray, fitted: np.ndarray,
+           sigma_hat: float) -> tuple[float, int, float]:
+    """Score statistic of ``signature`` (m, k) columns against the residual, its degrees of freedom, and the
+    sign of the residual along the first column's part the fit cannot absorb (+1: the effect is larger than
+    modelled, -1: smaller; the statistic itself is two-sided)."""
     e = _orthogonal_part(signature, fitted)
     u, s, _ = np.linalg.svd(e, full_matrices=False)
     keep = s > 1e-10 * max(float(s.max(initial=0.0)), 1e-300)
     if not keep.any():
-        return float("nan"), 0
+        return float("nan"), 0, 0.0
     proj = u[:, keep].T @ residual
-    return float(proj @ proj / sigma_hat**2), int(keep.sum())
+    return float(proj @ proj / sigma_hat**2), int(keep.sum()), float(np.sign(e[:, 0] @ residual))
 
 
 def unmodelled_effects(
@@ -105,17 +111,22 @@ def unmodelled_effects(
     if delayed_experiment is not None:
         later = model_experiment(delayed_experiment, motor, fit_names)
         column = (predicted_currents(motor, later).reshape(-1) - predicted)[:, None]
-        tests.append(("delay", ("delay_samples",), f"more PWM/computation delay than the {delay_samples} sample(s) "
-                      "assumed", column))
+        tests.append(("delay", ("delay_samples",), f"a PWM/computation delay other than the {delay_samples} "
+                      "sample(s) assumed", column))
 
     out = []
     threshold = ALPHA / max(len(tests), 1)
     for effect, params, what, signature in tests:
-        statistic, dof = _score(residual, signature, fitted, sigma_hat)
+        statistic, dof, direction = _score(residual, signature, fitted, sigma_hat)
         p = float(chi2_sf(statistic, dof)) if dof else float("nan")
         suspected = bool(dof and p < threshold)
-        fix = ("raise 'delay_samples' (motor file) or --delay" if effect == "delay"
-               else "add " + ", ".join(params) + " to 'estimate' (motor file) or --estimate")
+        fix = "add " + ", ".join(params) + " to 'estimate' (motor file) or --estimate"
+        if effect == "delay":
+            # Two-sided: the residual along the extra-delay signature says which way the delay is off.
+            more = direction >= 0 or delay_samples == 0
+            what = (f"{'more' if more else 'less'} PWM/computation delay than the {delay_samples} sample(s) "
+                    "assumed")
+            fix = f"{'raise' if more else 'lower'} 'delay_samples' (motor file) or --delay"
         out.append({
             "effect": effect,
             "parameters": list(params),
