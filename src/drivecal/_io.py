@@ -50,13 +50,55 @@ def save_figure(fig, path: str | os.PathLike, dpi: int = 110) -> None:
     plt.close(fig)
 
 
-def prepare_output_dir(path: str | os.PathLike) -> Path:
-    """Create the output directory (and parents); refuse a path that is a file."""
+def check_output_path(path: str | os.PathLike, option: str, *, directory: bool = False,
+                      example: str | None = None) -> Path:
+    """Refuse an output path that cannot be written, before any work starts; write nothing.
+
+    The one rule of every command's output:
+
+    - an output *file* must not be an existing directory, and its parent must
+      be an existing, writable directory (it is not created);
+    - an output *directory* (``directory=True``) is either an existing,
+      writable directory, or a new one whose parent is an existing, writable
+      directory (it is created when the outputs are written).
+
+    Raises:
+        DrivecalError: one sentence naming ``option``, the path and the fix.
+    """
     out = Path(path)
-    if out.exists() and not out.is_dir():
-        raise DrivecalError(f"--out {out}: this is an existing file; give a directory path.")
+    what = "directory" if directory else "file"
+    shown = f"{option} {out}"
+    if str(path) == "":
+        raise DrivecalError(f"{option}: the path is empty; give a {what} path"
+                            + (f" such as {example}." if example else "."))
+    if directory and out.exists():
+        if not out.is_dir():
+            raise DrivecalError(f"{shown}: this is an existing file, not a directory; give a directory path.")
+        if not os.access(out, os.W_OK | os.X_OK):
+            raise DrivecalError(f"{shown}: no permission to write in this directory; choose a writable one.")
+        return out
+    if not directory and out.is_dir():
+        raise DrivecalError(f"{shown}: this is a directory, not a file; give a file path"
+                            + (f" such as {example}." if example else " inside it."))
+    parent = out.parent
+    if not parent.exists():
+        raise DrivecalError(f"{shown}: the directory {parent} does not exist; create it first "
+                            f"(mkdir -p {parent}) or choose another path.")
+    if not parent.is_dir():
+        raise DrivecalError(f"{shown}: {parent} is a file, not a directory; choose another path.")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise DrivecalError(f"{shown}: no permission to write in {parent}; choose a writable directory.")
+    if not directory and out.exists() and not out.is_file():
+        raise DrivecalError(f"{shown}: this is not a regular file; choose another path.")
+    return out
+
+
+def prepare_output_dir(path: str | os.PathLike, option: str = "--out") -> Path:
+    """Create the output directory (:func:`check_output_path`'s rule: its parent must exist)."""
+    out = check_output_path(path, option, directory=True)
     try:
-        out.mkdir(parents=True, exist_ok=True)
+        out.mkdir(exist_ok=True)
     except OSError as exc:
-        raise DrivecalError(f"--out {out}: cannot create the directory ({exc.strerror}); choose another path.")
+        raise DrivecalError(f"{option} {out}: cannot create the directory ({exc.strerror}); "
+                            "choose another path.") from None
     return out

@@ -9,6 +9,7 @@ third-party libraries.
 
 from __future__ import annotations
 
+import math
 import re
 import tomllib
 from pathlib import Path
@@ -54,22 +55,38 @@ def parse_quantity(value: Any, quantity: str) -> float:
     if isinstance(value, bool):
         raise _UnitError(f"expected a {quantity} such as '{_EXAMPLE[quantity]}', got {value!r}")
     if isinstance(value, (int, float)):
-        return float(value)
+        return _finite(value, value, quantity)
     if not isinstance(value, str):
-        raise _UnitError(f"expected a {quantity} such as '{_EXAMPLE[quantity]}', got {value!r}")
+        raise _UnitError(f"expected a {quantity} such as '{_EXAMPLE[quantity]}', got {_short(value)}")
     match = _NUMBER_UNIT.match(value)
     if not match:
-        raise _UnitError(f"'{value}' is not a number with a unit; write e.g. '{_EXAMPLE[quantity]}'")
+        raise _UnitError(f"{_short(value)} is not a number with a unit; write e.g. '{_EXAMPLE[quantity]}'")
     number, unit = float(match.group(1)), match.group(2)
     if unit == "":
-        return number
+        return _finite(number, value, quantity)
     for base in _UNITS[quantity]:
         if unit.endswith(base) and unit[: -len(base)] in _PREFIXES:
-            return number * _PREFIXES[unit[: -len(base)]]
+            return _finite(number * _PREFIXES[unit[: -len(base)]], value, quantity)
     raise _UnitError(
         f"'{value}' has unit '{unit}' but a {quantity} in {_UNITS[quantity][0]} is expected; "
         f"write e.g. '{_EXAMPLE[quantity]}'"
     )
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    """``repr(value)``, cut to ``limit`` characters: a message stays one readable line."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _finite(number: float | int, value: Any, quantity: str) -> float:
+    try:
+        x = float(number)
+    except OverflowError:
+        x = math.inf
+    if not math.isfinite(x):
+        raise _UnitError(f"expected a finite {quantity} such as '{_EXAMPLE[quantity]}', got {_short(value)}")
+    return x
 
 
 def quantity(name: str) -> Any:
@@ -89,12 +106,14 @@ def _location(loc: tuple) -> str:
     for item in loc:
         if isinstance(item, int):
             parts[-1] = f"{parts[-1]}[{item}]" if parts else f"[{item}]"
-        elif item in ("step", "chirp", "multisine", "prbs", "samples", "float", "function-before[<lambda>(), float]"):
-            continue  # pydantic's union branch names are not keys of the file
-        elif isinstance(item, str) and (item.startswith("function-") or item.startswith("tagged-union[")):
-            continue
+        elif isinstance(item, str) and (item.startswith(("function-", "tagged-union[", "nullable["))
+                                         or (item.startswith("<") and item.endswith(">"))):
+            continue  # pydantic's validator and union branch names (tags are written '<tag>') are no keys
         else:
-            parts.append(str(item))
+            text = str(item)
+            # a key that is not one plain printable word is shown quoted and escaped: the message stays one line
+            parts.append(text if text and text.isprintable() and "'" not in text and "." not in text
+                         and text.strip() == text else repr(text))
     return ".".join(parts)
 
 

@@ -49,3 +49,91 @@ def test_a_chunk_asks_for_its_files_before_reading_them(tmp_path, monkeypatch):
                                             (200, 128, 128), (256, 256, 256)])
 def test_batch_sizes_are_powers_of_two_at_most_a_chunk(n, chunk, size):
     assert _batch._bucket(n, chunk) == size
+
+
+# --------------------------------------------------------------------------- resuming a run: refusals
+
+def _one_sentence(err, *needles):
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("drivecal: error: ") and "Traceback" not in err, err
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+
+
+def _snapshot(root):
+    return {p: p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def _resume(tmp_path, capsys, *extra):
+    from drivecal.cli import main
+
+    before = _snapshot(tmp_path)
+    with pytest.raises(SystemExit) as info:
+        main(["batch", str(tmp_path / "in"), "--out", str(tmp_path / "r.parquet"), "--resume", "--workers", "1",
+              *map(str, extra)])
+    assert info.value.code == 2
+    assert _snapshot(tmp_path) == before  # nothing written
+    return capsys.readouterr().err
+
+
+@pytest.fixture()
+def one_motor(tmp_path):
+    fleet.synthetic_fleet(tmp_path / "in", 2, seed=3)
+    return tmp_path
+
+
+def test_resume_refuses_a_corrupt_table(one_motor, capsys):
+    """Before: pyarrow's 'ArrowInvalid: Parquet magic bytes not found' with a traceback."""
+    out = one_motor / "r.parquet"
+    out.write_bytes(b"not parquet at all")
+    err = _resume(one_motor, capsys)
+    _one_sentence(err, str(out), "not a readable Parquet table", "r.parquet.parts/", "choose another --out")
+
+
+def test_resume_refuses_a_corrupt_part(one_motor, capsys):
+    parts = fleet.parts_dir(one_motor / "r.parquet")
+    parts.mkdir()
+    (parts / "part-000000.parquet").write_bytes(b"PAR1 truncated")
+    err = _resume(one_motor, capsys)
+    _one_sentence(err, str(parts / "part-000000.parquet"), str(parts), "delete part-000000.parquet",
+                  "choose another --out")
+
+
+def _first_part(tmp_path, motor):
+    files = [str(p) for p in fleet.discover([tmp_path / "in"])]
+    parts = fleet.parts_dir(tmp_path / "r.parquet")
+    parts.mkdir()
+    table = fleet.calibrate_files(files[:1], motor, chunk=1)
+    table.to_parquet(parts / "part-000000.parquet", index=False)
+    return table
+
+
+def test_resume_refuses_another_motor_file(one_motor, capsys):
+    """Before: the second run's motors were added to the first's table: one table, two priors."""
+    first = one_motor / "first.toml"
+    first.write_text('R = "0.45 ohm"\n')
+    other = one_motor / "other.toml"
+    other.write_text('R = "0.60 ohm"\n')
+    table = _first_part(one_motor, dc.load_motor(first))
+    assert (table["motor_sha256"] == _batch.motor_sha256(dc.load_motor(first))).all()
+    assert (table["motor_file"] == str(first)).all()
+    err = _resume(one_motor, capsys, "--motor", other)
+    _one_sentence(err, str(first), str(other), "resume with the same motor file", "start a new --out")
+    # the same priors from a file laid out differently are the same motor file
+    same = one_motor / "same.toml"
+    same.write_text('# the same motor\nR = 0.45\n')
+    assert _batch.motor_sha256(dc.load_motor(same)) == _batch.motor_sha256(dc.load_motor(first))
+
+
+def test_resume_refuses_another_drivecal_version(one_motor, capsys):
+    table = _first_part(one_motor, MOTOR)
+    part = fleet.parts_dir(one_motor / "r.parquet") / "part-000000.parquet"
+    table.assign(drivecal_version="0.0.1").to_parquet(part, index=False)
+    err = _resume(one_motor, capsys)
+    _one_sentence(err, "drivecal 0.0.1", "resume with drivecal 0.0.1", "start a new --out")
+
+
+def test_resume_with_the_same_motor_file_goes_on(one_motor):
+    _first_part(one_motor, MOTOR)
+    summary = fleet.run_batch([one_motor / "in"], one_motor / "r.parquet", MOTOR, chunk=1, workers=1, resume=True)
+    assert summary.done_before == 1 and summary.total == 2

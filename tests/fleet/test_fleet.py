@@ -79,7 +79,7 @@ def test_corrupt_files_are_recorded_and_the_rest_calibrated(tmp_path, capsys):
     reasons = table.loc[["nan", "novq", "garbage"], "reason"]
     assert "column 'i_d' has a missing value in data row 41" in reasons["nan"]
     assert "missing column 'v_q'" in reasons["novq"]
-    assert "cannot be read as a mat bench file" in reasons["garbage"]
+    assert "is truncated or not a MAT file" in reasons["garbage"]
     assert (table.loc[["nan", "novq", "garbage"], "status"] == "invalid file").all()
     assert not fleet.parts_dir(out).exists()
 

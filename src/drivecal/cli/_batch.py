@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ._common import EXIT_COMPLETED_WITH_FAILURES, _console, _motor_option, _Positive
+from ._common import EXIT_COMPLETED_WITH_FAILURES, _check_out, _console, _load_motor, _motor_option, _Positive
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -15,7 +15,7 @@ if TYPE_CHECKING:
 
 @click.command("batch")
 @click.argument("inputs", metavar="INPUT...", nargs=-1, required=True)
-@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False),
+@click.option("--out", "out_path", required=True, type=click.Path(),
               help="Results table (.parquet): one row per motor.")
 @_motor_option
 @click.option("--chunk", type=click.IntRange(min=1), default=256, show_default=True,
@@ -46,15 +46,15 @@ def batch(inputs, out_path, motor_path, chunk, workers, scheduler, resume, measu
 
     Exit status: 0 all calibrated, 1 completed with failures, 2 bad input.
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
     if workers is not None and scheduler is not None:
         raise click.UsageError("give --workers (local processes) or --scheduler (a dask cluster), not both")
+    _check_out(out_path, "--out", example="out/results.parquet")
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
     from ..fleet import run_batch, tune_for_batch
-    from ..data import load_motor
 
     tune_for_batch()  # this process is the batch: before JAX starts its threads
-    motor_file = load_motor(motor_path)
+    motor_file = _load_motor(motor_path)
     console = _console(as_json)
     show = not as_json and console.is_terminal
     columns = (TextColumn("calibrating"), BarColumn(), MofNCompleteColumn(),

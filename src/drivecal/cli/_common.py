@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import click
 
+from .._io import check_output_path
 from .._version import __version__
 from .._status import Status
 from ..errors import DrivecalError
@@ -120,6 +121,39 @@ def _motor_option(f):
     return click.option("--motor", "motor_path", type=click.Path(dir_okay=False), default=None, help=_MOTOR_HELP)(f)
 
 
+#: Warnings of the running command, printed on stderr after it ends (see :func:`main`): a refused input
+#: stays one line on stderr. None outside :func:`main` (a warning is then printed at once).
+_WARNINGS: list[str] | None = None
+
+
+def _warn(message: str) -> None:
+    """A warning line for stderr, ``drivecal: warning: ...``: after the command's output, or at once."""
+    line = f"drivecal: warning: {message}"
+    if _WARNINGS is None:
+        click.echo(line, err=True)
+    else:
+        _WARNINGS.append(line)
+
+
+def _load_motor(motor_path):
+    """The motor of --motor (None: the built-in default motor); warns when the file leaves out a key that
+    matters, which then takes the default motor's value."""
+    from ..data import load_motor
+
+    motor_file = load_motor(motor_path)
+    if motor_file.defaulted:
+        keys = ", ".join(motor_file.defaulted)
+        _warn(f"--motor {motor_path}: {keys} not in the file; the built-in 48 V demo motor's value"
+              f"{'s are' if len(motor_file.defaulted) > 1 else ' is'} used (add {keys} to the file to calibrate "
+              "your own motor).")
+    return motor_file
+
+
+def _check_out(path, option: str, *, directory: bool = False, example: str | None = None):
+    """An output path checked before any work (the one rule: :func:`drivecal._io.check_output_path`)."""
+    return check_output_path(path, option, directory=directory, example=example)
+
+
 def _console(as_json: bool) -> Console:
     """Rich console: stderr when stdout carries JSON; a pipe or a log file gets a fixed width wide enough
     for the tables."""
@@ -129,7 +163,27 @@ def _console(as_json: bool) -> Console:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point: run the CLI, turning bad input into one line and exit status 2."""
+    """Entry point: run the CLI, turning bad input into one line and exit status 2.
+
+    Warnings (e.g. motor-file keys taken from the default motor) are printed on stderr after the
+    command's output, unless the input was refused: then the one error line is all stderr holds.
+    """
+    global _WARNINGS
+    _WARNINGS = []
+    refused = False
+    try:
+        return _run(argv)
+    except SystemExit as exc:
+        refused = exc.code == EXIT_BAD_INPUT
+        raise
+    finally:
+        pending, _WARNINGS = _WARNINGS, None
+        if not refused:
+            for line in pending:
+                click.echo(line, err=True)
+
+
+def _run(argv: list[str] | None) -> int:
     try:
         rv = cli.main(args=argv, prog_name="drivecal", standalone_mode=False)
         return rv if isinstance(rv, int) else 0

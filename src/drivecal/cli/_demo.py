@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ._common import _console, _fmt, _Positive
+from ._common import _check_out, _console, _fmt, _Positive
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -69,8 +69,8 @@ def _print_demo(result: DemoResult, console: Console) -> None:
 
 
 @click.command("demo")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, writable=True), default=None,
-              help="Directory for report.json and the PNG figures (created if missing).")
+@click.option("--out", "out_dir", type=click.Path(), default=None,
+              help="Directory for report.json and the PNG figures (created if missing; its parent must exist).")
 @click.option("--noise", type=_Positive(), default=0.02, show_default=True,
               help="Current-sensor noise standard deviation [A] added to the synthetic bench.")
 @click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True,
@@ -89,6 +89,8 @@ def demo(out_dir, noise, seed, as_json):
 
     With --out DIR it also writes DIR/report.json and PNG figures.
     """
+    if out_dir is not None:
+        _check_out(out_dir, "--out", directory=True)
     from ..demo import run_demo, write_demo_outputs
 
     console = _console(as_json)

@@ -7,8 +7,8 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ..errors import DrivecalError, PlanError
-from ._common import _console, _fmt, _motor_option, _Positive
+from ..errors import PlanError
+from ._common import _check_out, _console, _fmt, _load_motor, _motor_option, _Positive
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -26,7 +26,7 @@ if TYPE_CHECKING:
                    "needs --out.")
 @click.option("--budget", type=_Positive(), default=None,
               help="With --optimize: total duration of the improved plan [s] (default: the plan's own).")
-@click.option("--out", "out_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--out", "out_path", type=click.Path(), default=None,
               help="With --optimize: the improved plan file to write (TOML).")
 def design(plan_path, motor_path, noise, as_json, optimize, budget, out_path):
     """Judge PLAN.toml before bench time: feasibility, identifiability, predicted intervals.
@@ -55,11 +55,10 @@ def design(plan_path, motor_path, noise, as_json, optimize, budget, out_path):
     from ..design import assess_design
     from ..identify import check_requested
     from ..model import Experiment
-    from ..data import load_motor
     from ..plan import load_plan
 
     plan = load_plan(plan_path)
-    motor_file = load_motor(motor_path)
+    motor_file = _load_motor(motor_path)
     if motor_file.estimate is not None:
         check_requested(motor_file.names, Experiment.from_plan(plan), plan_path)
     report = assess_design(plan, motor_file.motor, noise_sigma=noise, names=motor_file.names,
@@ -81,22 +80,16 @@ def design(plan_path, motor_path, noise, as_json, optimize, budget, out_path):
 
 
 def _design_optimize(plan_path, motor_path, noise, as_json, budget, out_path) -> None:
-    from pathlib import Path
-
+    if out_path is None:
+        raise click.UsageError("--optimize needs --out OPT.toml, the improved plan file to write")
+    out = _check_out(out_path, "--out", example="out/optimal_plan.toml")
     from ..design import load_plan_waveforms, optimize_plan
     from ..identify import check_requested
     from ..model import Experiment
-    from ..data import load_motor
     from ..plan import write_plan
 
-    if out_path is None:
-        raise click.UsageError("--optimize needs --out OPT.toml, the improved plan file to write")
-    out = Path(out_path)
-    if out.is_dir() or not out.parent.is_dir():
-        raise DrivecalError(f"--out {out}: not a file in an existing directory; give a path like "
-                            "out/optimal_plan.toml.")
     plan, specs = load_plan_waveforms(plan_path)
-    motor_file = load_motor(motor_path)
+    motor_file = _load_motor(motor_path)
     if motor_file.estimate is not None:
         check_requested(motor_file.names, Experiment.from_plan(plan), plan_path)
     console = _console(as_json)

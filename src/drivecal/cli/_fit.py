@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import click
 
 from ..errors import DrivecalError
-from ._common import _console, _fmt, _motor_option, _Positive
+from ._common import _check_out, _console, _fmt, _load_motor, _motor_option, _Positive
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -54,8 +54,9 @@ def _fit_table(cal: Calibration) -> Table:
                    "offset_a, offset_b, alpha_R).")
 @click.option("--delay", "delay_samples", type=click.IntRange(0, 100), default=None,
               help="The inverter's PWM/computation delay [samples], replacing the motor file's 'delay_samples'.")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
-              help="Directory for report.json, report.html and the PNG figures (created if missing).")
+@click.option("--out", "out_dir", type=click.Path(), default=None,
+              help="Directory for report.json, report.html and the PNG figures (created if missing; its parent "
+                   "must exist).")
 @click.option("--json", "as_json", is_flag=True, help="Print the result JSON on stdout instead of the table.")
 def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_samples, out_dir, as_json):
     """Calibrate R, Ld, Lq, lambda_m from a bench file (.csv, .parquet or .mat).
@@ -78,17 +79,18 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
       5  not converged
       2  bad input (the file, an option or the motor file; one sentence on stderr)
     """
+    if out_dir is not None:
+        _check_out(out_dir, "--out", directory=True)
     from rich.markup import escape
 
     from ..data import load_bench
     from ..diagnose import check_saturation
     from ..fitting import fit
     from ..identify import check_requested
-    from ..data import load_motor
     from ..report import build_result
     from ..results import Status
 
-    motor_file = load_motor(motor_path)
+    motor_file = _load_motor(motor_path)
     if estimate is not None:
         motor_file = motor_file.model_copy(update={"estimate": _estimate_names(estimate)})
     if delay_samples is not None:

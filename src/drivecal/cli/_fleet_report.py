@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import click
 
-from ..errors import DrivecalError
+from ._common import _check_out
 
 
 @click.command("fleet-report")
 @click.argument("results", metavar="RESULTS.parquet", type=click.Path(dir_okay=False))
-@click.option("--html", "html_out", required=True, type=click.Path(dir_okay=False),
+@click.option("--html", "html_out", required=True, type=click.Path(),
               help="Write the self-contained HTML fleet report (histograms, outliers, trends) here.")
 def fleet_report(results, html_out):
     """Summarise a `drivecal batch` table: counts, outliers, failures, histograms and trends.
@@ -18,14 +18,9 @@ def fleet_report(results, html_out):
     batch), the motors that failed with their reasons, and plots each
     parameter's distribution and its trend along the serial order.
     """
-    from pathlib import Path
-
+    target = _check_out(html_out, "--html", example="out/fleet.html")
     from ..fleet import write_fleet_report
 
-    target = Path(html_out)
-    if target.is_dir() or not target.parent.is_dir():
-        raise DrivecalError(f"--html {target}: not a file in an existing directory; "
-                            "give a path like out/fleet.html.")
     table = write_fleet_report(results, target)
     outliers = table.loc[table["outlier"].fillna(False).astype(bool), "serial"].astype(str).tolist()
     click.echo(f"wrote {target}: {len(table)} motors, {len(outliers)} outlier(s)"

@@ -42,8 +42,10 @@ def gains(result_json, bandwidth, sample_rate, design, samples, seed, as_json):
 
     doc = load_result(result_json)
     label, fit_doc = select_fit(doc, design, source=str(result_json))
-    cal = Calibration.from_dict(fit_doc)
-    result = design_current_loop(cal, bandwidth, sample_rate_hz=sample_rate, num_samples=samples, seed=seed)
+    source = str(result_json) if label == "fit" else f"{result_json} (design {label})"
+    cal = Calibration.from_dict(fit_doc, source)
+    result = design_current_loop(cal, bandwidth, sample_rate_hz=sample_rate, num_samples=samples, seed=seed,
+                                 source=source)
     if as_json:
         click.echo(json.dumps({"result": str(result_json), "design": label, **result.to_dict()}, indent=2))
         return

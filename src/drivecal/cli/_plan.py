@@ -7,8 +7,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ..errors import DrivecalError
-from ._common import _console, _fmt, _motor_option, _Positive
+from ._common import _check_out, _console, _fmt, _load_motor, _motor_option, _Positive
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -29,7 +28,7 @@ if TYPE_CHECKING:
               help="Expected current-sensor noise standard deviation [A], for the predicted intervals. "
                    "Default: 0.2 % of --imax.")
 @click.option("--json", "as_json", is_flag=True, help="Print the plan and its assessment as JSON on stdout.")
-@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False),
+@click.option("--out", "out_path", required=True, type=click.Path(),
               help="Plan file to write (TOML, the format `drivecal design` and `simulate` read).")
 def plan_command(motor_path, vdc, imax, max_speed, budget, sample_rate, noise, as_json, out_path):
     """Design a bench plan for the motor: feasible, identifiable, scaled to it.
@@ -46,17 +45,11 @@ def plan_command(motor_path, vdc, imax, max_speed, budget, sample_rate, noise, a
     predicted 95 % CI half-widths) and scaled down until it is feasible.
     Exit status 2 when no feasible, identifiable plan exists.
     """
-    from pathlib import Path
-
+    out = _check_out(out_path, "--out", example="plans/motor.toml")
     from ..design import auto_design
-    from ..data import load_motor
     from ..plan import write_plan
 
-    out = Path(out_path)
-    if out.is_dir() or not out.parent.is_dir():
-        raise DrivecalError(f"--out {out}: not a file in an existing directory; give a path like "
-                            "plans/motor.toml.")
-    motor_file = load_motor(motor_path)
+    motor_file = _load_motor(motor_path)
     report = auto_design(motor_file.motor, v_dc=vdc, current_limit=imax, max_speed=max_speed,
                          budget=budget, sample_rate=sample_rate, noise_sigma=noise)
     plan = report.plan

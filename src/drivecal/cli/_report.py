@@ -6,12 +6,12 @@ import json
 
 import click
 
-from ..errors import DrivecalError
+from ._common import _check_out
 
 
 @click.command("report")
 @click.argument("result_json", type=click.Path(dir_okay=False))
-@click.option("--html", "html_out", type=click.Path(dir_okay=False, writable=True), default=None,
+@click.option("--html", "html_out", type=click.Path(), default=None,
               help="Write the self-contained HTML report (figures embedded) to this file.")
 @click.option("--json", "as_json", is_flag=True, help="Print the verdict of each fit as JSON on stdout.")
 def report(result_json, html_out, as_json):
@@ -21,18 +21,13 @@ def report(result_json, html_out, as_json):
     (DIR/report.json). The HTML equals the one the run wrote, apart from its
     time stamp.
     """
-    from pathlib import Path
-
+    if html_out is not None:
+        _check_out(html_out, "--html", example="out/report.html")
     from ..fitting import Calibration
     from ..report import write_html_report
     from ..results import load_result, result_fits
 
     doc = load_result(result_json)
-    if html_out is not None:
-        target = Path(html_out)
-        if target.is_dir() or not target.parent.is_dir():
-            raise DrivecalError(f"--html {target}: not a file in an existing directory; "
-                                "give a path like out/report.html.")
     fits = result_fits(doc)
     if as_json:
         click.echo(json.dumps({k: f.get("verdict") for k, f in fits.items()}, indent=2))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from ..errors import DrivecalError
-from ._common import _console, _motor_option, _Positive
+from ._common import _check_out, _console, _load_motor, _motor_option, _Positive
 
 
 @click.command("simulate")
@@ -16,7 +16,7 @@ from ._common import _console, _motor_option, _Positive
 @click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True, help="Seed of the sensor noise.")
 @click.option("--speed/--no-speed", "record_speed", default=True, show_default=True,
               help="Also write the measured mechanical speed w_m [rad/s] (an encoder; noise-free).")
-@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False),
+@click.option("--out", "out_path", required=True, type=click.Path(),
               help="Bench file to write: .csv, .parquet or .mat (format from the suffix).")
 def simulate(plan_path, motor_path, noise, seed, record_speed, out_path):
     """Run PLAN.toml on the synthetic bench and write a bench file.
@@ -29,17 +29,14 @@ def simulate(plan_path, motor_path, noise, seed, record_speed, out_path):
     motor file (v_dead, offsets, delay_samples, alpha_R with segment
     temperatures) are part of the simulated truth.
     """
-    from pathlib import Path
-
-    from ..bench import engine_bench
-    from ..data import load_motor
-    from ..plan import load_plan
-
-    out = Path(out_path)
+    out = _check_out(out_path, "--out", example="out/bench.csv")
     if out.suffix.lower() not in (".csv", ".parquet", ".mat"):
         raise DrivecalError(f"--out {out}: unknown format '{out.suffix}'; use a .csv, .parquet or .mat name.")
+    from ..bench import engine_bench
+    from ..plan import load_plan
+
     plan = load_plan(plan_path)
-    motor_file = load_motor(motor_path)
+    motor_file = _load_motor(motor_path)
     console = _console(False)
     with console.status(f"running {len(plan.segments)} segment(s) on the Jaxonomy engine..."):
         bench = engine_bench(plan, motor_file.motor, record_speed=record_speed,

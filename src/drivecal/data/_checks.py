@@ -16,16 +16,18 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
+from collections.abc import Hashable
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from ..errors import DataError
-from ..physics import abc_to_dq
 from .._stats import fast_median
 from ._bench_data import BenchData, SegmentData
+from ._phase import phase_to_dq
 from ._readers import Columns, columns_of, read_table
+from ._values import check_numbers
 
 #: The dq columns of a bench file, with what each holds.
 DQ_COLUMNS: dict[str, str] = {
@@ -74,13 +76,13 @@ def bench_from_frame(
     if next((v.shape[0] for v in frame.values()), 0) == 0:
         raise DataError(f"{source}: the file has no samples; record at least one segment.")
     if "i_d" not in frame and "i_a" in frame:
-        frame = _phase_to_dq(frame, source, pole_pairs)
+        frame = phase_to_dq(frame, source, pole_pairs)
     for col, meaning in DQ_COLUMNS.items():
         if col not in frame:
             hint = " (or phase columns i_a, i_b, v_a, v_b with theta_e)" if col in ("i_d", "i_q", "v_d", "v_q") else ""
             raise DataError(f"{source}: missing column '{col}' ({meaning}){hint}; add it to the file.")
     numeric = [c for c in _NUMERIC if c in frame]
-    _check_finite(frame, source, numeric)
+    check_numbers(frame, source, numeric)
     names, sizes = _segments(frame["segment"], source)
     checked = _check([frame], names, sizes, nominal_R, finite_known=True)
     if not checked.ok[0]:
@@ -139,7 +141,12 @@ def benches_from_frames(
 def _segments(segment: np.ndarray, source: str) -> tuple[list[str], list[int]]:
     """The segment names (stripped) in order of appearance and their numbers of rows; each a block of rows."""
     # Segment names by code (a handful of distinct names over thousands of rows: strip those, not every row).
-    codes, labels = pd.factorize(segment, use_na_sentinel=True)
+    try:
+        codes, labels = pd.factorize(segment, use_na_sentinel=True)
+    except TypeError:  # unhashable names: lists or arrays where text belongs
+        row = next(k for k, x in enumerate(segment) if not isinstance(x, Hashable))
+        raise DataError(f"{source}: column 'segment' holds lists ({str(segment[row])[:40]} in data row {row + 1}), "
+                        "not names; give every row its segment's name as text.") from None
     labels = [str(x).strip() for x in labels]
     blank = (codes < 0) | np.isin(codes, [i for i, x in enumerate(labels) if not x])
     if blank.any():
@@ -162,33 +169,6 @@ def _segments(segment: np.ndarray, source: str) -> tuple[list[str], list[int]]:
             "or give the blocks different names."
         )
     return order, (stops - starts).tolist()
-
-
-def _check_finite(columns: Columns, source: str, names: list[str]) -> None:
-    """Every value of the columns ``names`` (those present) a finite number, else a DataError naming the first bad row."""
-    for col in names:
-        if col not in columns:
-            continue
-        raw = columns[col]
-        if raw.dtype.kind in "fiub" and np.all(np.isfinite(raw)):
-            continue  # the common case, without pd.to_numeric's per-column cost
-        values = pd.to_numeric(raw, errors="coerce").astype(float)
-        bad = ~np.isfinite(values)
-        if not bad.any():
-            continue
-        rows = np.flatnonzero(~bad)
-        stride = np.diff(rows)
-        if rows.size >= 2 and stride.min() == stride.max() and stride[0] > 1:
-            raise DataError(
-                f"{source}: column '{col}' has a value only on every {stride[0]}th row: it was logged at a lower "
-                f"sample rate than 't'; resample '{col}' onto the time base of 't'."
-            )
-        row = int(np.flatnonzero(bad)[0])
-        what = "a missing value" if pd.isna(raw[row]) else f"'{raw[row]}'"
-        raise DataError(
-            f"{source}: column '{col}' has {what} in data row {row + 1} ({int(bad.sum())} bad value(s) in all); "
-            "every value must be a finite number: remove or repair those rows."
-        )
 
 
 def _checks_vectorise(columns: Columns) -> bool:
@@ -328,7 +308,7 @@ class _Checked:
         """The one sentence of table ``b`` (it failed), of the first check it fails in the order they read it."""
         if self.finite is not None and not self.finite[b]:
             try:
-                _check_finite(table, source, self.numeric)
+                check_numbers(table, source, self.numeric)
             except DataError as exc:
                 return exc
         for seg in self.segments:
@@ -407,7 +387,7 @@ def _check(tables: list[Columns], names: list[str], sizes: list[int], nominal_R:
     w_m, theta_e = column.get("w_m"), column.get("theta_e")
     segments, rates = [], []
     lo = 0
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for name, n in zip(names, sizes):
             seg = _Segment(name, lo, lo + n)
             lo += n
@@ -436,41 +416,8 @@ def _check(tables: list[Columns], names: list[str], sizes: list[int], nominal_R:
             segments.append(seg)
         for r in rates[1:]:
             ok &= ~_rate_differs(r, rates[0])
-    if nominal_R is not None:
-        ok &= ~_implausible_currents(np.max(np.abs(voltages), axis=(1, 2)), np.max(np.abs(currents), axis=(1, 2)),
-                                     nominal_R)
+        if nominal_R is not None:
+            ok &= ~_implausible_currents(np.max(np.abs(voltages), axis=(1, 2)),
+                                         np.max(np.abs(currents), axis=(1, 2)), nominal_R)
     return _Checked(numeric, column, currents, voltages, finite, segments,
                     [r.tolist() for r in rates], nominal_R, ok)
-
-
-# --------------------------------------------------------------------------- phase data
-
-
-def _clarke_park(columns: Columns, prefix: str, theta_e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Amplitude-invariant Clarke then Park of phase quantities ``<prefix>_a/b(/c)``."""
-    a, b = columns[f"{prefix}_a"].astype(float), columns[f"{prefix}_b"].astype(float)
-    # Without the third phase, assume no zero-sequence component: c = -a - b.
-    c = columns[f"{prefix}_c"].astype(float) if f"{prefix}_c" in columns else None
-    return abc_to_dq(a, b, c, theta_e, xp=np)
-
-
-def _phase_to_dq(frame: Columns, source: str, pole_pairs: float) -> Columns:
-    """Replace phase columns by dq columns (amplitude-invariant transforms)."""
-    for name in ("i_b", "v_a", "v_b"):
-        if name not in frame:
-            raise DataError(f"{source}: phase data needs column '{name}' (with i_a, i_b, v_a, v_b, optional i_c, v_c).")
-    _check_finite(frame, source, [c for c in frame if c[:2] in ("i_", "v_")] + ["theta_e", "theta_m"])
-    if "theta_e" in frame:
-        theta_e = frame["theta_e"].astype(float)
-    elif "theta_m" in frame:
-        theta_e = pole_pairs * frame["theta_m"].astype(float)
-    else:
-        raise DataError(
-            f"{source}: phase data needs a rotor angle column: 'theta_e' (electrical, rad) or "
-            "'theta_m' (mechanical, rad; multiplied by pole_pairs from the motor file)."
-        )
-    out = dict(frame)
-    out["theta_e"] = theta_e
-    out["i_d"], out["i_q"] = _clarke_park(frame, "i", theta_e)
-    out["v_d"], out["v_q"] = _clarke_park(frame, "v", theta_e)
-    return out

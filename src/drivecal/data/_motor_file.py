@@ -20,6 +20,11 @@ from ..physics import DEFAULT_MOTOR, ESTIMABLE, ESTIMATED, MotorParams
 from .._units import StrictModel, explain, quantity, read_toml
 
 
+#: The keys of a motor file that describe the motor itself: a file that leaves one out gets the default
+#: (48 V demo) motor's value, which is rarely what a real motor has (:attr:`MotorFile.defaulted`).
+REQUIRED_KEYS = ("R", "Ld", "Lq", "lambda_m", "pole_pairs")
+
+
 class MotorSpec(StrictModel):
     R: quantity("resistance") = float(DEFAULT_MOTOR.R)
     Ld: quantity("inductance") = float(DEFAULT_MOTOR.Ld)
@@ -53,6 +58,8 @@ class MotorFile(BaseModel):
             only when listed here.
         delay_samples: the inverter's PWM/computation delay (samples).
         source: the file path, for messages.
+        defaulted: the keys that matter (:data:`REQUIRED_KEYS`) the file left out, which took
+            the default motor's values (the CLI warns about them).
     """
 
     model_config = ConfigDict(frozen=True, arbitrary_types_allowed=True)
@@ -60,6 +67,7 @@ class MotorFile(BaseModel):
     estimate: tuple[str, ...] | None = None
     delay_samples: int = 0
     source: str = "default motor"
+    defaulted: tuple[str, ...] = ()
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -70,11 +78,24 @@ class MotorFile(BaseModel):
 
 
 def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
-    """A :class:`MotorFile` from the TOML table ``data`` (missing keys take the default motor's values)."""
+    """A :class:`MotorFile` from the TOML table ``data``.
+
+    Missing keys take the default motor's values; those of :data:`REQUIRED_KEYS` are listed in
+    ``defaulted``. An empty table is refused: it would silently be the demo motor.
+    """
+    if not isinstance(data, dict):
+        raise DrivecalError(f"{source}: a motor file is a TOML table of keys such as R, Ld, Lq, lambda_m, "
+                            f"got {type(data).__name__}.")
+    if not data:
+        raise DrivecalError(f"{source}: the motor file is empty; give at least {', '.join(REQUIRED_KEYS)} of the "
+                            "motor (see examples/motor.toml), or leave out --motor to use the built-in demo motor.")
     try:
         spec = MotorSpec.model_validate(data)
     except ValidationError as exc:
         raise explain(exc, source, "motor", ", ".join(MotorSpec.model_fields)) from None
+    if not 1 <= spec.pole_pairs <= 1000:
+        shown = spec.pole_pairs if abs(spec.pole_pairs) < 10**12 else "a huge number"
+        raise DrivecalError(f"{source}: 'pole_pairs' must be a whole number from 1 to 1000, got {shown}.")
     values = spec.model_dump(exclude={"estimate", "delay_samples"})
     signed = ("T_load", "offset_d", "offset_q", "offset_a", "offset_b", "T_ref")
     for name, value in values.items():
@@ -88,7 +109,9 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
     estimate = None if spec.estimate is None else tuple(spec.estimate)
     if estimate is not None and not estimate:
         raise DrivecalError(f"{source}: 'estimate' is empty; list at least one of R, Ld, Lq, lambda_m.")
-    return MotorFile(motor=motor, estimate=estimate, delay_samples=spec.delay_samples, source=source)
+    defaulted = tuple(k for k in REQUIRED_KEYS if k not in data)
+    return MotorFile(motor=motor, estimate=estimate, delay_samples=spec.delay_samples, source=source,
+                     defaulted=defaulted)
 
 
 def load_motor(path: str | Path | None) -> MotorFile:

@@ -15,6 +15,7 @@ import pandas as pd
 import pyarrow as pa  # loaded by pandas already
 
 from ..errors import DataError
+from ._values import time_in_seconds
 
 #: File formats by suffix.
 FORMATS = (".csv", ".parquet", ".mat")
@@ -26,14 +27,33 @@ Columns = dict
 
 
 def columns_of(frame: pd.DataFrame | Columns, source: str = "bench data") -> Columns:
-    """The columns of a bench table as 1-D numpy arrays (a DataFrame, or a mapping of equal-length columns)."""
+    """The columns of a bench table as 1-D numpy arrays (a DataFrame, or a mapping of equal-length columns).
+
+    A time column ``t`` of a timestamp or duration type becomes float64 seconds from its first
+    sample (:func:`._values.time_in_seconds`).
+    """
     if isinstance(frame, pd.DataFrame):
-        return {str(c): frame[c].to_numpy() for c in frame.columns}
-    out = {str(c): np.atleast_1d(np.asarray(v)) for c, v in frame.items()}
-    lengths = {k: v.shape[0] for k, v in out.items()}
-    if len(set(lengths.values())) > 1 or any(v.ndim != 1 for v in out.values()):
-        raise DataError(f"{source}: the columns must be 1-D and of one length, got lengths {lengths}; "
-                        "give one value per sample in every column.")
+        out = {}
+        for c in frame.columns:
+            series = frame[c]
+            if isinstance(series, pd.DataFrame):
+                raise DataError(f"{source}: column '{c}' appears more than once; give each column one name.")
+            if isinstance(series.dtype, pd.DatetimeTZDtype):
+                series = series.dt.tz_convert("UTC").dt.tz_localize(None)
+            out[str(c)] = series.to_numpy()
+    else:
+        out = {str(c): np.atleast_1d(np.asarray(v)) for c, v in frame.items()}
+        for name, v in out.items():
+            if v.ndim != 1:
+                shape = " x ".join(str(n) for n in v.shape)
+                raise DataError(f"{source}: column '{name}' is a {shape} array; give one value per sample in every "
+                                "column (a vector: save each column of a matrix as a column of its own).")
+        lengths = {k: v.shape[0] for k, v in out.items()}
+        if len(set(lengths.values())) > 1:
+            raise DataError(f"{source}: the columns must be 1-D and of one length, got lengths {lengths}; "
+                            "give one value per sample in every column.")
+    if "t" in out:
+        out["t"] = time_in_seconds(out["t"])
     return out
 
 
@@ -60,8 +80,10 @@ def read_table(path: Path, content: bytes | None = None) -> Columns:
         return _read_mat(path, source)
     except DataError:
         raise
-    except Exception as exc:  # a parser's own error: say which file and what it said
-        raise DataError(f"{path}: cannot be read as a {suffix[1:]} bench file ({exc}).") from None
+    except Exception as exc:  # a parser's own error: say which file and what it said, on one line
+        said = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise DataError(f"{path}: cannot be read as a {suffix[1:]} bench file ({said}); check that the file is "
+                        f"complete and a {suffix[1:]} file (write it again).") from None
 
 
 #: Text columns of a bench file: read from Parquet as dictionaries (a few labels, not one Python
@@ -102,10 +124,51 @@ def _arrow_to_numpy(column: Any) -> np.ndarray:
 
 
 def _read_mat(path: Path, source: Path | io.BytesIO) -> Columns:
-    """The columns of a MATLAB bench file (``source``: its path or its bytes; ``path`` names it in messages)."""
-    from scipy.io import loadmat
+    """The columns of a MATLAB bench file (``source``: its path or its bytes; ``path`` names it in messages).
 
-    raw = {k: v for k, v in loadmat(source, squeeze_me=True).items() if not k.startswith("__")}
+    One variable per column (vectors, a cell array of text for ``segment``), or all of them as the
+    fields of one struct (``bench.t``, ``bench.i_d``, ...), read as if they were variables.
+    """
+    from scipy.io import loadmat
+    from scipy.io.matlab import MatReadError
+
+    content = source.getvalue() if isinstance(source, io.BytesIO) else Path(source).read_bytes()
+    defect = mat5_defect(content)
+    if defect is not None:
+        raise DataError(f"{path}: is truncated or corrupted ({defect}); save it again with MATLAB's save (-v7 or "
+                        "earlier) or scipy.io.savemat.")
+    source = io.BytesIO(content)
+    try:
+        raw = {k: v for k, v in loadmat(source, squeeze_me=True).items() if not k.startswith("__")}
+    except NotImplementedError as exc:  # MATLAB -v7.3 (HDF5)
+        raise DataError(f"{path}: is a MATLAB -v7.3 (HDF5) file, which is not read ({' '.join(str(exc).split())}); "
+                        "save it with save(..., '-v7').") from None
+    except (MatReadError, ValueError, TypeError, OSError, EOFError, KeyError, IndexError, OverflowError,
+            MemoryError, UnicodeDecodeError, AttributeError) as exc:
+        said = " ".join(str(exc).split())[:120] or type(exc).__name__
+        raise DataError(f"{path}: is truncated or not a MAT file (scipy.io.loadmat: {said}); save it again with "
+                        "MATLAB's save (-v7 or earlier) or scipy.io.savemat.") from None
+    structs = [k for k, v in raw.items() if isinstance(v, np.ndarray) and v.dtype.names]
+    if len(raw) == 1 and structs:
+        name = structs[0]
+        struct = raw[name]
+        if struct.size != 1:
+            raise DataError(f"{path}: holds one struct array '{name}' of {struct.size} elements; save one struct "
+                            "(or one variable per column).")
+        raw = {str(f): struct[f].item() if struct.ndim == 0 else struct[f].ravel()[0] for f in struct.dtype.names}
+        raw = {k: v for k, v in raw.items()}
+        structs = [k for k, v in raw.items() if isinstance(v, np.ndarray) and v.dtype.names]
+    if structs:
+        raise DataError(f"{path}: variable '{structs[0]}' is a struct among other variables; save each column as a "
+                        "variable of its own (or all of them as the fields of one struct).")
+    if not raw:
+        raise DataError(f"{path}: holds no variables; save one vector per column (segment, locked, t, ...).")
+    raw = {k: np.asarray(v) if not isinstance(v, str) else np.array([v], dtype=object) for k, v in raw.items()}
+    for k, v in raw.items():
+        if v.ndim > 1:
+            shape = " x ".join(str(n) for n in v.shape)
+            raise DataError(f"{path}: variable '{k}' is a {shape} matrix; save each column as a vector of its own "
+                            "(one value per sample).")
     lengths = {k: np.size(v) for k, v in raw.items()}
     if len(set(lengths.values())) > 1:
         longest = max(lengths.values())
@@ -117,7 +180,81 @@ def _read_mat(path: Path, source: Path | io.BytesIO) -> Columns:
     columns = {}
     for k, v in raw.items():
         arr = np.atleast_1d(v)
-        columns[k] = (np.array([str(x).strip() for x in arr], dtype=object) if arr.dtype.kind in "OUS"
-                      else arr.astype(float))
+        if arr.dtype.kind in "OUS":
+            columns[k] = np.array([_mat_cell(x) for x in arr], dtype=object)
+        elif arr.dtype.kind in "iuf":
+            columns[k] = arr.astype(float)
+        else:  # booleans, complex numbers: as they are, for the checks to name
+            columns[k] = arr
     return columns
 
+
+def _mat_cell(x: Any) -> Any:
+    """One element of a cell array or char array: text stripped, a 1-element number as the number, else as is."""
+    if isinstance(x, (str, np.str_)):
+        return str(x).strip()
+    if isinstance(x, bytes):
+        return x.decode("latin-1").strip()
+    if isinstance(x, np.ndarray) and x.size == 1 and x.dtype.kind in "iuf":
+        return float(x.ravel()[0])
+    return x
+
+
+#: MAT-file v5 data types (miINT8 ... miUTF32; 8, 10 and 11 are reserved).
+_MAT5_TYPES = frozenset({1, 2, 3, 4, 5, 6, 7, 9, 12, 13, 14, 15, 16, 17, 18})
+
+
+def mat5_defect(content: bytes) -> str | None:
+    """What makes a MAT-file v5 stream malformed (a tag of an unknown type, an element running past its
+    end, a compressed element that does not inflate), or None when its elements are well formed or it is
+    not a v5 file.
+
+    scipy's reader trusts the tags and can crash the process (a segmentation fault) on a corrupted one,
+    so every element's tag is walked here first, nested and compressed ones included.
+    """
+    import struct
+    import zlib
+
+    if len(content) < 128 or content[126:128] not in (b"IM", b"MI") or content[:4] == b"\x89HDF":
+        return None
+    if content[124:126] not in (b"\x00\x01", b"\x01\x00"):
+        return None  # -v7.3 (HDF5) and others: scipy says what they are
+    order = "<" if content[126:128] == b"IM" else ">"
+
+    def walk(data: bytes, start: int, stop: int, depth: int) -> str | None:
+        if depth > 32:
+            return "elements nested too deep"
+        pos = start
+        while pos < stop:
+            if stop - pos < 8:
+                return f"{stop - pos} stray bytes at byte {pos}"
+            first, second = struct.unpack_from(order + "II", data, pos)
+            small = first >> 16
+            if small:  # small data element: type and size in one word, at most 4 bytes of data
+                kind, size = first & 0xFFFF, small
+                if kind not in _MAT5_TYPES or size > 4 or kind in (14, 15):
+                    return f"a bad element tag at byte {pos}"
+                pos += 8
+                continue
+            kind, size = first, second
+            if kind not in _MAT5_TYPES:
+                return f"an element of unknown type {kind} at byte {pos}"
+            body = pos + 8
+            if size > stop - body:
+                return f"an element of {size} bytes at byte {pos} runs past the end"
+            if kind == 14:
+                found = walk(data, body, body + size, depth + 1)
+                if found:
+                    return found
+            elif kind == 15:
+                try:
+                    inner = zlib.decompress(data[body:body + size])
+                except zlib.error:
+                    return f"a compressed element at byte {pos} does not inflate"
+                found = walk(inner, 0, len(inner), depth + 1)
+                if found:
+                    return found
+            pos = body + size + (-size % 8 if kind != 15 else 0)
+        return None
+
+    return walk(content, 128, len(content), 0)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import glob
+import json
 import math
 import os
 import shutil
@@ -268,7 +269,22 @@ def calibrate_files(
     order = {item.path: i for i, item in enumerate(loaded)}
     table = table.iloc[np.argsort(table["file"].map(order).to_numpy(), kind="stable")].reset_index(drop=True)
     table["drivecal_version"] = __version__
+    table["motor_file"] = motor_file.source
+    table["motor_sha256"] = motor_sha256(motor_file)
     return table
+
+
+def motor_sha256(motor_file: MotorFile) -> str:
+    """SHA-256 (hex) of a motor file's content as loaded: every prior value (SI), ``estimate``, ``delay_samples``.
+
+    Two motor files with the same priors and settings hash alike whatever their layout, units or
+    comments; any other prior, parameter list or delay hashes differently. Recorded per row of the
+    table (``motor_sha256``), so a resumed run can refuse another motor file.
+    """
+    content = {"motor": {k: float(v) for k, v in motor_file.motor.all_values().items()},
+               "estimate": None if motor_file.estimate is None else list(motor_file.estimate),
+               "delay_samples": int(motor_file.delay_samples)}
+    return content_sha256(json.dumps(content, sort_keys=True).encode())
 
 # --------------------------------------------------------------------------- the run
 
@@ -314,14 +330,56 @@ def parts_dir(out: Path) -> Path:
     return out.with_name(out.name + ".parts")
 
 
+def _read_table(path: Path, out: Path) -> pd.DataFrame:
+    """One saved table (the final one or a part); refused in one sentence if it cannot be read."""
+    parts = parts_dir(out)
+    where = (f"{path}: a part of the interrupted run in {parts}/" if path.parent == parts
+             else f"{path}: the results table of the earlier run")
+    fix = (f"delete {path.name} (its motors are calibrated again) or choose another --out" if path.parent == parts
+           else f"delete it (and {parts.name}/) to start again, or choose another --out")
+    try:
+        if not path.is_file():
+            raise IsADirectoryError(path)
+        table = pd.read_parquet(path)
+    except Exception as exc:  # pyarrow raises ArrowInvalid, OSError, ... for a file that is not Parquet
+        raise DrivecalError(f"{where} is not a readable Parquet table ({type(exc).__name__}); {fix}.") from None
+    if len(table) and "file" not in table.columns:
+        raise DrivecalError(f"{where} has no 'file' column, so it is not a drivecal results table; {fix}.")
+    return table
+
+
 def _read_done(out: Path) -> pd.DataFrame:
     tables = []
     if out.exists():
-        tables.append(pd.read_parquet(out))
+        tables.append(_read_table(out, out))
     parts = parts_dir(out)
     if parts.is_dir():
-        tables += [pd.read_parquet(p) for p in sorted(parts.glob("part-*.parquet"))]
+        tables += [_read_table(p, out) for p in sorted(parts.glob("part-*.parquet"))]
     return _combine(tables)
+
+
+def _check_same_run(done: pd.DataFrame, out: Path, motor_file: MotorFile) -> None:
+    """Refuse to resume ``out`` with another motor file or another drivecal version than its rows were made with."""
+    from .._version import __version__
+
+    if not len(done):
+        return
+    fix = "or start a new --out"
+    versions = sorted(set(done["drivecal_version"].dropna().astype(str))) if "drivecal_version" in done else []
+    if versions != [__version__]:
+        earlier = " and ".join(versions) or "an unrecorded version"
+        raise DrivecalError(f"--resume {out}: its rows were calibrated by drivecal {earlier}, this is drivecal "
+                            f"{__version__}; resume with drivecal {earlier}, {fix}.")
+    sha = motor_sha256(motor_file)
+    hashes = done["motor_sha256"].fillna("").astype(str) if "motor_sha256" in done else pd.Series([""])
+    if set(hashes) != {sha}:
+        earlier = hashes[hashes != sha].iloc[0] if (hashes != sha).any() else ""
+        sources = done.get("motor_file", pd.Series(["an unrecorded motor file"] * len(done)))
+        source = str(sources[(hashes != sha).to_numpy()].iloc[0]) if earlier else "an unrecorded motor file"
+        was = f"{source} (content sha256 {earlier[:12]})" if earlier else "an unrecorded motor file"
+        raise DrivecalError(f"--resume {out}: its rows were calibrated with motor file {was}, this run with "
+                            f"{motor_file.source} (content sha256 {sha[:12]}); resume with the same motor file, "
+                            f"{fix}.")
 
 
 def _combine(tables: list[pd.DataFrame]) -> pd.DataFrame:
@@ -381,6 +439,7 @@ def run_batch(
         )
     files = [str(p) for p in discover(inputs)]
     done = _read_done(out) if resume else pd.DataFrame()
+    _check_same_run(done, out, motor_file)
     done_files = set(done["file"]) if len(done) else set()
     todo = [f for f in files if f not in done_files]
     # Chunks of equal size (at most ``chunk``): all then compile to one batch size, where a short

@@ -10,12 +10,13 @@ files") and exemplified in ``examples/``. Motor files are read in
 
 from __future__ import annotations
 
+import math
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
 import numpy as np
-from pydantic import Field, ValidationError
+from pydantic import AfterValidator, Discriminator, Tag, ValidationError
 
 from . import _waveforms as waveforms
 from ..errors import DrivecalError
@@ -71,15 +72,49 @@ class SamplesSpec(StrictModel):
     column: str | None = None
 
 
-Waveform = Annotated[Union[StepSpec, ChirpSpec, MultisineSpec, PrbsSpec, SamplesSpec], Field(discriminator="kind")]
+#: The waveform kinds of a ``[segment.v_d]`` / ``[segment.v_q]`` table.
+KINDS = ("step", "chirp", "multisine", "prbs", "samples")
+
+
+def _no_kind(table: dict) -> dict:
+    kinds = ", ".join(f"'{k}'" for k in KINDS)
+    if "kind" not in table:
+        raise ValueError(f"a waveform table needs a 'kind', one of {kinds}")
+    kind = table["kind"]
+    shown = repr(kind) if len(repr(kind)) <= 40 else repr(kind)[:37] + "..."
+    raise ValueError(f"unknown waveform kind {shown}; write kind = one of {kinds}")
+
+
+def _axis_tag(value: Any) -> str:
+    """The branch of a segment's v_d/v_q: a constant voltage, a waveform table by its kind, or a table of no
+    known kind (refused with the kinds). Tags are written '<tag>', which error locations leave out."""
+    if not isinstance(value, dict):
+        return "<voltage>"
+    kind = value.get("kind")
+    return f"<{kind}>" if isinstance(kind, str) and kind in KINDS else "<unknown kind>"
+
+
+#: A segment's voltage on one axis: a constant (number or "8 V") or a waveform table.
+Axis = Annotated[
+    Union[
+        Annotated[Volts, Tag("<voltage>")],
+        Annotated[StepSpec, Tag("<step>")],
+        Annotated[ChirpSpec, Tag("<chirp>")],
+        Annotated[MultisineSpec, Tag("<multisine>")],
+        Annotated[PrbsSpec, Tag("<prbs>")],
+        Annotated[SamplesSpec, Tag("<samples>")],
+        Annotated[dict, AfterValidator(_no_kind), Tag("<unknown kind>")],
+    ],
+    Discriminator(_axis_tag),
+]
 
 
 class SegmentSpec(StrictModel):
     name: str
     duration: Seconds
     locked: bool
-    v_d: Union[Volts, Waveform] = 0.0
-    v_q: Union[Volts, Waveform] = 0.0
+    v_d: Axis = 0.0
+    v_q: Axis = 0.0
     temperature: quantity("temperature") | None = None
 
 
@@ -88,7 +123,70 @@ class PlanSpec(StrictModel):
     v_dc: Volts = 48.0
     current_limit: Amperes = 30.0
     max_speed: quantity("speed") | None = None
-    segment: list[SegmentSpec] = Field(min_length=1)
+    segment: list[SegmentSpec]
+
+
+#: The most samples a plan may hold (all segments): 500 s at 20 kHz. More is a typo in a duration or a
+#: sample rate, and would not fit in memory.
+MAX_SAMPLES = 10_000_000
+#: Absolute zero [degC].
+_ABSOLUTE_ZERO = -273.15
+
+
+def _check_spec(spec: PlanSpec, source: str) -> list[int]:
+    """What pydantic's types do not say: signs, names, sample counts; each refusal names its key.
+    Returns the number of samples of each segment."""
+    for key, unit, example in (("sample_rate", "Hz", "20 kHz"), ("v_dc", "V", "48 V"),
+                               ("current_limit", "A", "30 A"), ("max_speed", "rad/s", "300 rad/s")):
+        value = getattr(spec, key)
+        if value is not None and not value > 0:
+            raise DrivecalError(f"{source}: '{key}' must be positive, got {value:g} {unit}; write e.g. "
+                                f"{key} = \"{example}\".")
+    if not spec.segment:
+        raise DrivecalError(f"{source}: 'segment': the plan has no segments; add at least one [[segment]] table.")
+    seen: dict[str, int] = {}
+    counts = []
+    for i, s in enumerate(spec.segment):
+        where = f"{source}: 'segment[{i}]"
+        if not s.name.strip():
+            raise DrivecalError(f"{where}.name' is empty; give each segment a name.")
+        if not s.name.isprintable() or len(s.name) > 200:
+            raise DrivecalError(f"{where}.name' must be one printable line of at most 200 characters, got "
+                                f"{s.name[:40]!r}.")
+        if s.name in seen:
+            raise DrivecalError(f"{where}.name': {s.name!r} is already the name of segment[{seen[s.name]}]; "
+                                "give each segment a name of its own.")
+        seen[s.name] = i
+        samples = s.duration * spec.sample_rate
+        if not s.duration > 0:
+            raise DrivecalError(f"{where}.duration' must be positive, got {s.duration:g} s.")
+        if sum(counts) + samples > MAX_SAMPLES:
+            raise DrivecalError(f"{where}.duration': {s.duration:g} s at {spec.sample_rate:g} Hz brings the plan "
+                                f"past {MAX_SAMPLES:.0e} samples; shorten it or lower 'sample_rate'.")
+        n = int(round(samples))
+        if n < 2:
+            raise DrivecalError(f"{where}.duration': segment '{s.name}' lasts {s.duration:g} s = {n} sample(s) "
+                                f"at {spec.sample_rate:g} Hz; make it at least two sample periods.")
+        counts.append(n)
+        if s.temperature is not None and s.temperature < _ABSOLUTE_ZERO:
+            raise DrivecalError(f"{where}.temperature' is below absolute zero ({s.temperature:g} degC); "
+                                "give the winding temperature in degC.")
+        for axis in ("v_d", "v_q"):
+            _check_waveform(getattr(s, axis), f"{where}.{axis}")
+    return counts
+
+
+def _check_waveform(spec, where: str) -> None:
+    if isinstance(spec, StepSpec) and spec.delay < 0:
+        raise DrivecalError(f"{where}.delay' must be >= 0, got {spec.delay:g} s.")
+    if isinstance(spec, (ChirpSpec, MultisineSpec)) and not math.isfinite(getattr(spec, "phase", 0.0)):
+        raise DrivecalError(f"{where}.phase' must be a finite number [rad], got {spec.phase!r}.")
+    if isinstance(spec, PrbsSpec) and spec.bit_rate is not None and not spec.bit_rate > 0:
+        raise DrivecalError(f"{where}.bit_rate' must be positive, got {spec.bit_rate:g} Hz.")
+    if isinstance(spec, SamplesSpec) and spec.values is not None:
+        bad = [k for k, v in enumerate(spec.values) if not math.isfinite(v)]
+        if bad:
+            raise DrivecalError(f"{where}.values[{bad[0]}]' must be a finite voltage, got {spec.values[bad[0]]!r}.")
 
 
 def _axis(spec, n: int, sample_rate: float, base: Path, where: str) -> np.ndarray:
@@ -102,14 +200,27 @@ def _axis(spec, n: int, sample_rate: float, base: Path, where: str) -> np.ndarra
             import pandas as pd
 
             csv = base / spec.file
+            if not csv.is_file():
+                raise DrivecalError(f"{where}.file: '{csv}' is not a file; check 'file' (relative to the plan file).")
             try:
                 frame = pd.read_csv(csv)
-            except FileNotFoundError:
-                raise DrivecalError(f"{where}: file '{csv}' not found; check 'file'.") from None
+            except (OSError, ValueError, UnicodeDecodeError, pd.errors.ParserError) as exc:
+                reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+                raise DrivecalError(f"{where}.file: '{csv}' cannot be read as CSV ({reason}); check 'file'.") from None
+            if len(frame.columns) == 0:
+                raise DrivecalError(f"{where}.file: '{csv}' has no columns; check 'file'.")
             column = spec.column or frame.columns[0]
             if column not in frame:
-                raise DrivecalError(f"{where}: '{csv}' has no column '{column}'; check 'column'.")
-            params = {"values": frame[column].to_numpy(dtype=float)}
+                raise DrivecalError(f"{where}.column: '{csv}' has no column '{column}'; check 'column'.")
+            try:
+                values = frame[column].to_numpy(dtype=float)
+            except (TypeError, ValueError):
+                raise DrivecalError(f"{where}.column: column '{column}' of '{csv}' is not all numbers; "
+                                    "give voltages in V.") from None
+            if not np.all(np.isfinite(values)):
+                raise DrivecalError(f"{where}.column: column '{column}' of '{csv}' has a missing or infinite "
+                                    "value; give one finite voltage per sample.")
+            params = {"values": values}
         else:
             params = {"values": spec.values}
     try:
@@ -125,20 +236,18 @@ def plan_from_dict(data: dict, source: str = "plan", base: Path | None = None) -
         DrivecalError: an unknown key, a wrong unit, a bad waveform or an
             infeasible plan, naming ``source`` and the key.
     """
+    if not isinstance(data, dict):
+        raise DrivecalError(f"{source}: a plan file is a TOML table with keys such as sample_rate, v_dc and "
+                            f"[[segment]], got {type(data).__name__}.")
     try:
         spec = PlanSpec.model_validate(data)
     except ValidationError as exc:
         keys = ", ".join(PlanSpec.model_fields) + " (per [[segment]]: " + ", ".join(SegmentSpec.model_fields) + ")"
         raise explain(exc, source, "plan", keys) from None
+    counts = _check_spec(spec, source)
     base = base or Path(".")
     segments = []
-    for i, s in enumerate(spec.segment):
-        n = int(round(s.duration * spec.sample_rate))
-        if n < 2:
-            raise DrivecalError(
-                f"{source}: segment[{i}] ('{s.name}') lasts {s.duration:g} s = {n} sample(s) at "
-                f"{spec.sample_rate:g} Hz; make 'duration' at least two sample periods."
-            )
+    for i, (s, n) in enumerate(zip(spec.segment, counts)):
         v_d = _axis(s.v_d, n, spec.sample_rate, base, f"{source}: segment[{i}].v_d")
         v_q = _axis(s.v_q, n, spec.sample_rate, base, f"{source}: segment[{i}].v_q")
         segments.append(Segment(s.name, s.duration, s.locked, v_d=v_d, v_q=v_q, temperature=s.temperature))

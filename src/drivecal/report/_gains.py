@@ -44,6 +44,8 @@ from ..results import Calibration
 MAX_BANDWIDTH_FRACTION = 0.1
 #: Inductance of each axis.
 AXES = (("d", "Ld"), ("q", "Lq"))
+#: The parameters the gains are made of.
+_GAIN_PARAMS = ("R", "Ld", "Lq")
 
 
 def pi_gains(resistance: Any, inductance: Any, bandwidth_hz: float) -> tuple[Any, Any]:
@@ -240,15 +242,54 @@ class CurrentLoopDesign:
         }
 
 
-def _draws(cal: Calibration, num_samples: int, seed: int) -> np.ndarray:
-    """Motors from N(estimate, Cov) over the fitted names, shape (S, len(names)); the rest fixed."""
+def _draws(cal: Calibration, estimate: np.ndarray, num_samples: int, seed: int) -> np.ndarray:
+    """Motors from N(estimate, Cov) over the fitted names, shape (S, len(names)); the rest fixed.
+
+    Where the covariance is not finite outside the gains' parameters (R, Ld, Lq), only their
+    block is drawn (the marginal of the same normal).
+    """
     rng = np.random.default_rng(seed)
-    idx = [cal.names.index(n) for n in cal.fit_names]
-    out = np.broadcast_to(np.asarray(cal.estimate, dtype=float), (num_samples, len(cal.names))).copy()
+    cov = np.asarray(cal.covariance, dtype=float)
+    keep = list(range(len(cal.fit_names)))
+    if not np.all(np.isfinite(cov)):
+        keep = [i for i, n in enumerate(cal.fit_names) if n in _GAIN_PARAMS]
+        cov = cov[np.ix_(keep, keep)]
+    idx = [cal.names.index(cal.fit_names[i]) for i in keep]
+    out = np.broadcast_to(estimate, (num_samples, len(cal.names))).copy()
     if idx:
-        out[:, idx] = rng.multivariate_normal(np.asarray(cal.estimate)[idx], np.asarray(cal.covariance),
-                                              size=num_samples, method="eigh")
+        out[:, idx] = rng.multivariate_normal(estimate[idx], cov, size=num_samples, method="eigh",
+                                              check_valid="ignore")  # checked by from_dict
     return out
+
+
+def _gain_inputs(cal: Calibration, source: str) -> np.ndarray:
+    """The estimate the gains use: the fit's, the prior's for a parameter not fitted (as the fit holds it).
+
+    Raises:
+        DrivecalError: R, Ld or Lq fitted but its estimate or variance undefined, or not positive.
+    """
+    fix = "refit, or pass a result whose fit converged"
+    estimate = np.array(cal.estimate, dtype=float)
+    cov = np.asarray(cal.covariance, dtype=float)
+    for name in _GAIN_PARAMS:
+        i = cal.names.index(name)
+        fitted = name in cal.fit_names
+        if not math.isfinite(estimate[i]):
+            if fitted:
+                raise DrivecalError(f"{source}: parameters.{name}.estimate is null; gains need every inductance "
+                                    f"and R estimated — {fix}.")
+            estimate[i] = float(getattr(cal.prior, name))
+        if not estimate[i] > 0:
+            what = "estimate" if fitted else "prior"
+            raise DrivecalError(f"{source}: parameters.{name}.{what} is {estimate[i]:.6g}; gains need a positive "
+                                f"R, Ld and Lq — {fix}.")
+    block = [cal.fit_names.index(n) for n in _GAIN_PARAMS if n in cal.fit_names]
+    sub = cov[np.ix_(block, block)]
+    if not np.all(np.isfinite(sub)):
+        bad = cal.fit_names[block[int(np.argwhere(~np.isfinite(sub))[0, 0])]]
+        raise DrivecalError(f"{source}: covariance of {bad} is null; the gains' uncertainty needs the covariance of "
+                            f"every fitted R and L — {fix}.")
+    return estimate
 
 
 def design_current_loop(
@@ -258,6 +299,7 @@ def design_current_loop(
     sample_rate_hz: float | None = None,
     num_samples: int = 4000,
     seed: int = 0,
+    source: str = "the calibration",
 ) -> CurrentLoopDesign:
     """PI gains for both current axes, their uncertainty, and the loop they achieve.
 
@@ -268,10 +310,16 @@ def design_current_loop(
             continuous time. Must be at least ``bandwidth / MAX_BANDWIDTH_FRACTION``.
         num_samples: Monte Carlo draws from the parameter covariance.
         seed: Monte Carlo seed.
+        source: where ``cal`` came from (the result file), for messages.
+
+    A parameter the fit did not identify keeps its prior value (and the
+    gains that use it have no uncertainty, with a warning).
 
     Raises:
-        DrivecalError: non-positive bandwidth or sample rate, or a bandwidth too
-            high for the sample rate.
+        DrivecalError: non-positive bandwidth or sample rate, a bandwidth too
+            high for the sample rate, R, Ld or Lq not estimated (null, or not
+            positive), the covariance of a fitted one undefined, or so wide that
+            (almost) every Monte Carlo draw has a non-positive R or L.
     """
     if not (bandwidth_hz > 0 and math.isfinite(bandwidth_hz)):
         raise DrivecalError(f"--bandwidth {bandwidth_hz}: must be a positive number of Hz, e.g. 1000.")
@@ -284,16 +332,21 @@ def design_current_loop(
                 f"{sample_rate_hz:g} Hz; lower the bandwidth to at most {MAX_BANDWIDTH_FRACTION * sample_rate_hz:g} "
                 "Hz or raise the sample rate."
             )
-    if "R" not in cal.names or not all(n in cal.names for _, n in AXES):
-        raise DrivecalError("the result does not estimate R, Ld and Lq; gains need all three.")
+    if not all(n in cal.names for n in _GAIN_PARAMS):
+        raise DrivecalError(f"{source}: the result does not estimate R, Ld and Lq; gains need all three.")
     w_c = 2.0 * math.pi * bandwidth_hz
-    est = dict(zip(cal.names, np.asarray(cal.estimate, dtype=float)))
+    estimate = _gain_inputs(cal, source)
+    est = dict(zip(cal.names, estimate))
     fit_idx = {n: i for i, n in enumerate(cal.fit_names)}
     cov = np.asarray(cal.covariance, dtype=float)
-    draws = _draws(cal, num_samples, seed)
+    draws = _draws(cal, estimate, num_samples, seed)
     col = {n: draws[:, i] for i, n in enumerate(cal.names)}
-    ok = np.all(draws[:, [cal.names.index(n) for n in ("R", "Ld", "Lq")]] > 0, axis=1)
+    ok = np.all(draws[:, [cal.names.index(n) for n in _GAIN_PARAMS]] > 0, axis=1)
     warnings = []
+    if ok.sum() < 2:
+        raise DrivecalError(f"{source}: {int((~ok).sum())} of {num_samples} Monte Carlo draws from the covariance "
+                            "have a non-positive R or L, too few left to judge the loop; refit with more data (a "
+                            "covariance this wide does not calibrate the motor).")
     if not ok.all():
         warnings.append(f"{int((~ok).sum())} of {num_samples} Monte Carlo draws had a non-positive R or L and "
                         "were dropped")

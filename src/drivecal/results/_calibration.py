@@ -17,6 +17,7 @@ from .._stats import t_ppf
 from ..identify import Identifiability
 from ..physics import ADDITIVE_SCALE, FIXED, NUISANCE, UNITS, MotorParams
 from .._status import solver_message
+from ._record import validate_fit
 
 
 def result_message(code: int, converged: bool) -> str:
@@ -114,8 +115,9 @@ class Calibration:
     @property
     def correlation(self) -> np.ndarray:
         """(..., n, n) correlation matrix of the fitted names."""
-        sd = np.sqrt(np.diagonal(self.covariance, axis1=-2, axis2=-1))
-        return self.covariance / (sd[..., :, None] * sd[..., None, :])
+        with np.errstate(divide="ignore", invalid="ignore"):  # a zero or undefined variance: NaN
+            sd = np.sqrt(np.diagonal(self.covariance, axis1=-2, axis2=-1))
+            return self.covariance / (sd[..., :, None] * sd[..., None, :])
 
     @property
     def dof(self) -> int:
@@ -192,12 +194,23 @@ class Calibration:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> Calibration:
+    def from_dict(cls, d: dict[str, Any], source: str = "result") -> Calibration:
         """Rebuild a single fit from :meth:`to_dict` output (e.g. a saved result JSON).
 
         ``null`` becomes NaN. Results saved before the ``prior`` section existed
         get their prior from ``parameters.<name>.prior`` and ``fixed``.
+
+        Args:
+            d: one fit's result JSON.
+            source: the file it came from, for messages.
+
+        Raises:
+            DrivecalError: a field missing, null where a number is needed, of the
+                wrong type or shape, or a covariance that is not symmetric positive
+                semi-definite (``drivecal.results.validate_fit``; one sentence
+                naming ``source`` and the field).
         """
+        validate_fit(d, source, sections=False)
         def arr(x):
             return np.array([[np.nan if v is None else float(v) for v in row] for row in x], dtype=float)
 
@@ -207,7 +220,7 @@ class Calibration:
         params = d["parameters"]
         names = tuple(params)
         fit_names = tuple(d["names"])
-        ci = [params[n]["ci95"] or [None, None] for n in names]
+        ci = [params[n].get("ci95") or [None, None] for n in names]
         if "prior" in d:
             prior = MotorParams(**{k: float(v) for k, v in d["prior"].items()})
         else:
@@ -248,6 +261,8 @@ class Calibration:
         if self.batch_shape:
             raise TypeError("to_pandas() is for one fit; index the batch first")
         half = self.t_factor * self.se
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = 100.0 * half / np.abs(self.estimate)
         return pd.DataFrame(
             {
                 "unit": [UNITS[n] for n in self.names],
@@ -255,7 +270,7 @@ class Calibration:
                 "se": self.se,
                 "ci95_low": self.ci95[:, 0],
                 "ci95_high": self.ci95[:, 1],
-                "rel_ci95_percent": 100.0 * half / np.abs(self.estimate),
+                "rel_ci95_percent": rel,
                 "identifiable": list(self.identifiable),
                 "prior": [float(getattr(self.prior, n)) for n in self.names],
                 "initial": self.initial,
@@ -325,7 +340,8 @@ class Calibration:
         for i, n in enumerate(self.names):
             if self.identifiable[i]:
                 ci = f"[{self.ci95[i, 0]:.6g}, {self.ci95[i, 1]:.6g}]"
-                rel = f"{100.0 * self.t_factor * self.se[i] / abs(self.estimate[i]):.3g} %"
+                est = abs(float(self.estimate[i]))
+                rel = f"{100.0 * self.t_factor * float(self.se[i]) / est:.3g} %" if est > 0 else "-"
                 lines.append(f"    {n:<9} {UNITS[n]:<4} {self.estimate[i]:>12.6g} {self.se[i]:>10.3g} {ci:>27} "
                              f"{'+/-' + rel:>12}  yes")
             else:

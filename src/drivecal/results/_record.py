@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import platform
 from importlib import metadata
@@ -37,6 +38,7 @@ import numpy as np
 from .._version import __version__
 from ..data import BenchData
 from ..errors import DrivecalError
+from ..physics import ESTIMABLE, FIXED, UNITS
 
 #: Default of the optional sections: the key is left out of the document (a null would be a value).
 NOT_RECORDED = object()
@@ -140,28 +142,330 @@ def demo_document(*, noise_sigma: float, seed: int, truth: dict[str, float], ini
     }
 
 
-def load_result(path: str | os.PathLike) -> dict[str, Any]:
-    """Read a saved drivecal result JSON (one fit, or a demo with ``designs``).
+#: The fix for a file that is not a drivecal result at all.
+RESULT_HINT = "give a result JSON written by `drivecal fit` or `drivecal demo --out DIR` (DIR/report.json)"
+#: The fix for a result with a bad field.
+_REFIT = "refit, or pass the result JSON as `drivecal fit` or `drivecal demo` wrote it"
+#: Keys every single fit holds.
+REQUIRED_FIT_KEYS = ("parameters", "names", "covariance", "sigma_hat", "converged", "identifiability",
+                     "num_residuals", "iterations")
+#: Largest integer a count in a result may be (int64 and float64-exact).
+_MAX_INT = 2**53
+#: Bench-trace columns of each ``segments`` entry.
+_TRACES = ("t", "v_d", "v_q", "i_d", "i_q", "i_d_pred", "i_q_pred")
+
+
+def _what(v: Any) -> str:
+    """A JSON value's kind, in words, for messages."""
+    if v is None:
+        return "null"
+    if isinstance(v, bool):
+        return "a boolean"
+    if isinstance(v, (int, float)):
+        return "NaN" if v != v else ("infinite" if isinstance(v, float) and not math.isfinite(v) else "a number")
+    return {str: "a string", list: "a list", dict: "an object"}.get(type(v), type(v).__name__)
+
+
+def _key(k: str) -> str:
+    """A key from the file, as it can go into a one-line message."""
+    return k if k.isidentifier() and len(k) <= 40 else repr(k[:40])
+
+
+class _Check:
+    """Checks on one result document; each failure is one sentence naming ``source`` and the field."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, field: str, problem: str, fix: str = _REFIT) -> None:
+        raise DrivecalError(f"{self.source}: {field} {problem}; {fix}.")
+
+    def obj(self, v: Any, field: str, *, null: bool = False) -> dict | None:
+        if v is None and null:
+            return None
+        if not isinstance(v, dict):
+            self.fail(field, f"is {_what(v)}, not an object")
+        return v
+
+    def lst(self, v: Any, field: str, *, length: int | None = None, null: bool = False) -> list | None:
+        if v is None and null:
+            return None
+        if not isinstance(v, list):
+            self.fail(field, f"is {_what(v)}, not a list")
+        if length is not None and len(v) != length:
+            self.fail(field, f"has {len(v)} entries where {length} are needed")
+        return v
+
+    def num(self, v: Any, field: str, *, null: bool = True, finite: bool = False) -> float:
+        """A number (null and non-finite allowed unless told): returned as a float, NaN for null."""
+        if v is None:
+            if not null:
+                self.fail(field, "is null where a number is needed")
+            return math.nan
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            self.fail(field, f"is {_what(v)}, not a number")
+        if isinstance(v, int) and abs(v) > 1e300:
+            self.fail(field, "is too large a number")
+        x = float(v)
+        if finite and not math.isfinite(x):
+            self.fail(field, f"is {_what(v)} where a finite number is needed")
+        return x
+
+    def nums(self, v: Any, field: str, *, length: int | None = None) -> list[float]:
+        """A list of numbers or nulls."""
+        items = self.lst(v, field, length=length)
+        if all(type(x) is float or x is None for x in items):  # the common case, fast
+            return [math.nan if x is None else x for x in items]
+        return [self.num(x, f"{field}[{i}]") for i, x in enumerate(items)]
+
+    def integer(self, v: Any, field: str, lo: int = 0, hi: int = _MAX_INT) -> int:
+        if isinstance(v, bool) or not isinstance(v, int):
+            if isinstance(v, float) and v.is_integer() and lo <= v <= hi:
+                return int(v)
+            self.fail(field, f"is {_what(v)}, not a whole number")
+        if not lo <= v <= hi:
+            self.fail(field, f"is {v if abs(v) < 1e15 else 'out of range'}; it must lie in [{lo}, {hi}]")
+        return v
+
+    def boolean(self, v: Any, field: str) -> bool:
+        if not isinstance(v, bool):
+            self.fail(field, f"is {_what(v)}, not true or false")
+        return v
+
+    def string(self, v: Any, field: str, *, null: bool = False) -> str | None:
+        if v is None and null:
+            return None
+        if not isinstance(v, str):
+            self.fail(field, f"is {_what(v)}, not a string")
+        return v
+
+    def strings(self, v: Any, field: str) -> list[str]:
+        items = self.lst(v, field)
+        for i, x in enumerate(items):
+            self.string(x, f"{field}[{i}]")
+        return items
+
+    def number_map(self, v: Any, field: str) -> None:
+        """null, or an object of numbers (or nulls)."""
+        for k, x in (self.obj(v, field, null=True) or {}).items():
+            self.num(x, f"{field}.{_key(k)}")
+
+    def matrix(self, v: Any, field: str, n: int) -> np.ndarray:
+        rows = self.lst(v, field, length=n)
+        return np.array([self.nums(r, f"{field}[{i}]", length=n) for i, r in enumerate(rows)], dtype=float
+                        ).reshape(n, n)
+
+
+def check_covariance(cov: np.ndarray, names: list[str], source: str, field: str = "covariance") -> None:
+    """Refuse a finite covariance that is not symmetric positive semi-definite (a null/NaN one is left alone).
+
+    The test runs on the matrix scaled to unit diagonal (the correlation it implies), so it does not
+    depend on the parameters' units; the message gives the covariance's own smallest eigenvalue too.
+    """
+    check = _Check(source)
+    diag = np.diag(cov)
+    for i, n in enumerate(names):
+        if diag[i] < 0:
+            check.fail(f"{field}[{i}][{i}]", f"(the variance of {n}) is negative, {diag[i]:.3g}")
+    if cov.size == 0 or not np.all(np.isfinite(cov)):
+        return
+    fix = "refit, or restore the covariance the fit wrote"
+    scale = np.sqrt(np.where(diag > 0, diag, 1.0))
+    with np.errstate(all="ignore"):
+        corr = cov / np.outer(scale, scale)
+        sym = 0.5 * (cov + cov.T)
+    if not (np.all(np.isfinite(corr)) and np.all(np.isfinite(sym))):
+        check.fail(field, "is not positive semi-definite (a correlation beyond +/-1)", fix)
+    if float(np.max(np.abs(corr - corr.T))) > 1e-6:
+        check.fail(field, "is not symmetric", fix)
+    try:
+        lam = float(np.min(np.linalg.eigvalsh(0.5 * (corr + corr.T))))
+        lam_cov = float(np.min(np.linalg.eigvalsh(sym)))
+    except np.linalg.LinAlgError:
+        check.fail(field, "has no eigenvalues (the decomposition does not converge)", fix)
+    if lam < -1e-9:
+        check.fail(field, f"is not positive semi-definite (smallest eigenvalue {lam_cov:.3g}, {lam:.3g} "
+                          "scaled to unit variances: a correlation beyond +/-1)", fix)
+
+
+def validate_fit(d: Any, source: str = "result", prefix: str = "", *, sections: bool = True) -> None:
+    """Check one fit's result JSON (:meth:`Calibration.to_dict` plus :func:`result_document`'s sections).
+
+    Accepts what drivecal writes, nulls included where a value may be undefined
+    (the SE and CI of a parameter that is not identifiable, a covariance that
+    is not finite); ``sections=False`` checks only what ``Calibration.from_dict``
+    reads.
 
     Raises:
-        DrivecalError: missing file, not JSON, or not a drivecal result (one sentence, with the fix).
+        DrivecalError: a key missing, a value null where a number is needed, of
+            the wrong type or shape, or a covariance not symmetric positive
+            semi-definite; one sentence naming ``source`` and the field.
+    """
+    c = _Check(source)
+    missing = [k for k in REQUIRED_FIT_KEYS if not isinstance(d, dict) or k not in d]
+    if missing:
+        raise DrivecalError(f"{source}: not a drivecal result (no '{prefix}{missing[0]}' field); {RESULT_HINT}.")
+    params = c.obj(d["parameters"], f"{prefix}parameters")
+    if not params:
+        c.fail(f"{prefix}parameters", "is empty")
+    has_prior = d.get("prior") is not None
+    for n, p in params.items():
+        f = f"{prefix}parameters.{_key(n)}"
+        if n not in ESTIMABLE:
+            c.fail(f"{prefix}parameters", f"names {_key(n)}, not a parameter drivecal estimates "
+                                          f"({', '.join(ESTIMABLE)})")
+        c.obj(p, f)
+        for k in ("estimate", "se", "identifiable"):
+            if k not in p:
+                c.fail(f"{f}.{k}", "is missing")
+        c.num(p["estimate"], f"{f}.estimate")
+        c.num(p["se"], f"{f}.se")
+        c.boolean(p["identifiable"], f"{f}.identifiable")
+        if p.get("ci95") is not None:
+            c.nums(p["ci95"], f"{f}.ci95", length=2)
+        c.num(p.get("initial"), f"{f}.initial")
+        c.num(p.get("prior"), f"{f}.prior", null=has_prior, finite=not has_prior)
+        c.string(p.get("unit", ""), f"{f}.unit")
+        c.string(p.get("reason", ""), f"{f}.reason")
+    names = c.strings(d["names"], f"{prefix}names")
+    for i, n in enumerate(names):
+        if n not in params:
+            c.fail(f"{prefix}names[{i}]", f"is {_key(n)}, which is not in parameters")
+        if names.index(n) != i:
+            c.fail(f"{prefix}names[{i}]", f"repeats {_key(n)}")
+    cov = c.matrix(d["covariance"], f"{prefix}covariance", len(names))
+    check_covariance(cov, names, source, f"{prefix}covariance")
+    if d.get("correlation") is not None:
+        corr = c.matrix(d["correlation"], f"{prefix}correlation", len(names))
+        if np.any(np.abs(corr[np.isfinite(corr)]) > 1 + 1e-6):
+            c.fail(f"{prefix}correlation", "holds a value beyond +/-1")
+    c.num(d["sigma_hat"], f"{prefix}sigma_hat")
+    c.num(d.get("rss"), f"{prefix}rss")
+    c.boolean(d["converged"], f"{prefix}converged")
+    c.string(d.get("message", ""), f"{prefix}message")
+    c.integer(d.get("result_code", 0), f"{prefix}result_code", -1, 1000)
+    c.integer(d["iterations"], f"{prefix}iterations")
+    m = c.integer(d["num_residuals"], f"{prefix}num_residuals")
+    if m <= len(names):
+        c.fail(f"{prefix}num_residuals", f"is {m}, not more than the {len(names)} fitted parameters")
+    if d.get("t_factor") is not None and not c.num(d["t_factor"], f"{prefix}t_factor", finite=True) > 0:
+        c.fail(f"{prefix}t_factor", "is not positive")
+    c.num(d.get("dof"), f"{prefix}dof")
+    _validate_identifiability(c, d["identifiability"], f"{prefix}identifiability")
+    if has_prior:
+        for k, v in c.obj(d["prior"], f"{prefix}prior").items():
+            if k not in UNITS:
+                c.fail(f"{prefix}prior", f"names {_key(k)}, not a motor parameter")
+            c.num(v, f"{prefix}prior.{k}", null=False, finite=True)
+    fixed = c.obj(d.get("fixed", {}), f"{prefix}fixed", null=has_prior) or {}
+    for k, v in fixed.items():
+        c.num(v, f"{prefix}fixed.{_key(k)}", null=has_prior, finite=not has_prior and k in FIXED)
+    if not has_prior and "fixed" not in d:
+        c.fail(f"{prefix}prior", "is missing (and so is fixed)")
+    hist = c.obj(d.get("history"), f"{prefix}history", null=True)
+    if hist is not None:
+        width = len(c.strings(hist["names"], f"{prefix}history.names")) if "names" in hist else None
+        rows = c.lst(hist.get("values"), f"{prefix}history.values")
+        for i, row in enumerate(rows):
+            width = len(c.lst(row, f"{prefix}history.values[{i}]")) if width is None else width
+            c.nums(row, f"{prefix}history.values[{i}]", length=width)
+    c.string(d.get("source", ""), f"{prefix}source")
+    c.integer(d.get("delay_samples", 0), f"{prefix}delay_samples", 0, 100_000)
+    if sections:
+        _validate_sections(c, d, prefix)
+
+
+def _validate_identifiability(c: _Check, ident: Any, f: str) -> None:
+    c.obj(ident, f)
+    for k in ("rank", "identifiable"):
+        if k not in ident:
+            c.fail(f"{f}.{k}", "is missing")
+    c.integer(ident["rank"], f"{f}.rank")
+    c.boolean(ident["identifiable"], f"{f}.identifiable")
+    for k in ("names", "fit_names"):  # null: taken from the sensitivities
+        if ident.get(k) is not None:
+            c.strings(ident[k], f"{f}.{k}")
+    for k in ("weak_params", "dead_params", "confounded_params"):
+        c.strings(ident.get(k, []), f"{f}.{k}")
+    for k, v in c.obj(ident.get("reasons", {}), f"{f}.reasons").items():
+        c.string(v, f"{f}.reasons.{_key(k)}")
+    c.nums(ident.get("singular_values", []), f"{f}.singular_values")
+    for k in ("sensitivity", "predicted_se", "predicted_ci95", "variance_inflation"):
+        c.number_map(ident.get(k), f"{f}.{k}")
+    for k in ("condition_number", "noise_sigma"):
+        c.num(ident.get(k), f"{f}.{k}")
+    for k in ("num_residuals", "num_params"):
+        c.integer(ident.get(k, 0), f"{f}.{k}")
+
+
+def _validate_sections(c: _Check, d: dict, prefix: str) -> None:
+    """What the report reads beyond the Calibration: verdict, traces, residuals, provenance."""
+    verdict = c.obj(d.get("verdict"), f"{prefix}verdict", null=True)
+    if verdict is not None:
+        c.string(verdict.get("status"), f"{prefix}verdict.status")
+        c.string(verdict.get("headline"), f"{prefix}verdict.headline")
+        c.strings(verdict.get("details"), f"{prefix}verdict.details")
+    for i, seg in enumerate(c.lst(d.get("segments"), f"{prefix}segments", null=True) or []):
+        f = f"{prefix}segments[{i}]"
+        c.obj(seg, f)
+        c.string(seg.get("name"), f"{f}.name")
+        c.boolean(seg.get("locked"), f"{f}.locked")
+        length = len(c.lst(seg.get("t"), f"{f}.t"))
+        for k in _TRACES:
+            c.nums(seg.get(k), f"{f}.{k}", length=length)
+    residuals = c.obj(d.get("residuals"), f"{prefix}residuals", null=True) or {}
+    for k in ("sigma_ratio", "sigma_stated", "sigma_hat"):
+        c.num(residuals.get(k), f"{prefix}residuals.{k}")
+    effects = c.lst(residuals.get("unmodelled_effects"), f"{prefix}residuals.unmodelled_effects", null=True) or []
+    for i, e in enumerate(effects):
+        c.obj(e, f"{prefix}residuals.unmodelled_effects[{i}]")
+    c.obj(d.get("plan"), f"{prefix}plan", null=True)
+    c.string(d.get("motor_file"), f"{prefix}motor_file", null=True)
+    for k in ("input", "versions", "saturation"):
+        c.obj(d.get(k), f"{prefix}{k}", null=True)
+    for n, t in (c.obj(d.get("truth"), f"{prefix}truth", null=True) or {}).items():
+        c.num(c.obj(t, f"{prefix}truth.{_key(n)}").get("true"), f"{prefix}truth.{_key(n)}.true", null=False)
+
+
+def validate_result(doc: Any, source: str = "result") -> None:
+    """Check a result document: one fit (:func:`validate_fit`), or a demo's with one fit per design.
+
+    Raises:
+        DrivecalError: one sentence naming ``source`` and the field, with the fix.
+    """
+    if isinstance(doc, dict) and "designs" in doc:
+        designs = _Check(source).obj(doc["designs"], "designs")
+        if not designs:
+            _Check(source).fail("designs", "is empty")
+        for name, fit_doc in designs.items():
+            validate_fit(fit_doc, source, f"designs.{_key(name)}.")
+        for k in ("noise_sigma", "seed"):
+            _Check(source).num(doc.get(k), k)
+        return
+    validate_fit(doc, source)
+
+
+def load_result(path: str | os.PathLike) -> dict[str, Any]:
+    """Read a saved drivecal result JSON (one fit, or a demo with ``designs``) and check it (:func:`validate_result`).
+
+    Raises:
+        DrivecalError: missing file, not JSON, not a drivecal result, or a field
+            missing, null where a number is needed, of the wrong type or shape, or a
+            covariance that is not symmetric positive semi-definite (one sentence
+            naming the file and the field, with the fix).
     """
     p = Path(path)
-    hint = "give a result JSON written by `drivecal fit` or `drivecal demo --out DIR` (DIR/report.json)"
     if not p.is_file():
-        raise DrivecalError(f"{p}: no such file; {hint}.")
+        raise DrivecalError(f"{p}: no such file; {RESULT_HINT}.")
     try:
         doc = json.loads(p.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
-        raise DrivecalError(f"{p}: not a text file, so not a result JSON; {hint}.")
+        raise DrivecalError(f"{p}: not a text file, so not a result JSON; {RESULT_HINT}.")
     except json.JSONDecodeError as exc:
-        raise DrivecalError(f"{p}: not valid JSON (line {exc.lineno}: {exc.msg}); {hint}.")
-    fits = list(doc["designs"].values()) if isinstance(doc, dict) and isinstance(doc.get("designs"), dict) else [doc]
-    required = ("parameters", "names", "covariance", "sigma_hat", "converged", "identifiability", "num_residuals")
-    for fit_doc in fits:
-        missing = [k for k in required if not isinstance(fit_doc, dict) or k not in fit_doc]
-        if missing:
-            raise DrivecalError(f"{p}: not a drivecal result (no '{missing[0]}' field); {hint}.")
+        raise DrivecalError(f"{p}: not valid JSON (line {exc.lineno}: {exc.msg}); {RESULT_HINT}.")
+    except (RecursionError, ValueError) as exc:  # nesting too deep; an integer too long to read
+        raise DrivecalError(f"{p}: not a readable JSON document ({type(exc).__name__}); {RESULT_HINT}.")
+    validate_result(doc, str(p))
     return doc
 
 
