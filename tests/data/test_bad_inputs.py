@@ -9,7 +9,8 @@ from scipy.io import savemat
 
 import drivecal as dc
 
-from test_data import assert_one_sentence, run_cli, small_frame
+from helpers.cli import assert_one_sentence, run_cli
+from test_data import small_frame
 
 
 def _fit(path, tmp_path, capsys, *needles):

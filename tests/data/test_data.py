@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 import drivecal as dc
-from drivecal.cli import main
+from helpers.cli import assert_one_sentence, run_cli
 
 FS = 20_000.0
 
@@ -78,23 +78,6 @@ def test_at_rest_noise_comes_from_the_start_of_the_segment():
     assert not dc.bench_from_frame(frame, "offset.csv").segments[0].at_rest
     frame.loc[0, "i_d"] = 0.02
     assert dc.bench_from_frame(frame, "quiet.csv").segments[0].at_rest
-
-
-def run_cli(args, capsys):
-    with pytest.raises(SystemExit) as info:
-        main([str(a) for a in args])
-    err = capsys.readouterr().err
-    return info.value.code, err
-
-
-def assert_one_sentence(code, err, *needles):
-    assert code == 2
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith("drivecal: error: ")
-    assert "Traceback" not in err
-    for needle in needles:
-        assert needle in lines[0], (needle, lines[0])
 
 
 def _bad_frames():

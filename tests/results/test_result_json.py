@@ -13,6 +13,7 @@ import pytest
 
 from conftest import NOISE
 from drivecal.cli import main
+from helpers.cli import assert_one_sentence, run_cli_output
 from drivecal.errors import DrivecalError
 from drivecal.report import build_result, design_current_loop
 from drivecal.results import Calibration, load_result
@@ -27,23 +28,6 @@ def good(default_fit, default_bench):
 def partial(poor_fit, poor_bench):
     """Ld and lambda_m not identifiable: their se and ci95 are null."""
     return json.loads(json.dumps(build_result(poor_fit, poor_bench, noise_sigma=NOISE)))
-
-
-def run_cli(args, capsys):
-    with pytest.raises(SystemExit) as info:
-        main([str(a) for a in args])
-    captured = capsys.readouterr()
-    return info.value.code, captured.err, captured.out
-
-
-def assert_one_sentence(code, err, *needles):
-    assert code == 2
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith("drivecal: error: ")
-    assert "Traceback" not in err
-    for needle in needles:
-        assert needle in lines[0], (needle, lines[0])
 
 
 def _write(tmp_path, doc, name="result.json"):
@@ -66,7 +50,7 @@ def _set_corr(doc, i, j, r):
 def test_null_lq_estimate_is_refused_by_gains(good, tmp_path, capsys):
     """Before: exit 0, RuntimeWarnings, NaN loop figures and '4000 of 4000 Monte Carlo draws dropped'."""
     path = _write(tmp_path, _edit(good, lambda d: d["parameters"]["Lq"].update(estimate=None)))
-    code, err, out = run_cli(["gains", path, "--bandwidth", "1000"], capsys)
+    code, err, out = run_cli_output(["gains", path, "--bandwidth", "1000"], capsys)
     assert_one_sentence(code, err, str(path), "parameters.Lq.estimate is null", "refit")
     assert out == ""
 
@@ -76,7 +60,7 @@ def test_a_correlation_beyond_one_is_refused_by_every_reader(good, tmp_path, cap
     path = _write(tmp_path, _edit(good, lambda d: _set_corr(d, 1, 2, 3.0)))
     html = tmp_path / "report.html"
     for args in (["gains", path, "--bandwidth", "1000"], ["report", path, "--html", html]):
-        code, err, out = run_cli(args, capsys)
+        code, err, out = run_cli_output(args, capsys)
         assert_one_sentence(code, err, str(path), "covariance", "positive semi-definite", "smallest eigenvalue")
         assert out == ""
     assert not html.exists()
@@ -112,7 +96,7 @@ def test_a_bad_field_is_named_by_report_and_gains(good, tmp_path, capsys, edit, 
     path = _write(tmp_path, _edit(good, edit))
     html = tmp_path / "out.html"
     for args in (["report", path, "--html", html], ["gains", path, "--bandwidth", "1000"]):
-        code, err, out = run_cli(args, capsys)
+        code, err, out = run_cli_output(args, capsys)
         assert_one_sentence(code, err, str(path), field)
         assert out == ""
     assert not html.exists()
@@ -122,7 +106,7 @@ def test_a_demo_document_names_the_design(good, tmp_path, capsys):
     demo = {"noise_sigma": NOISE, "seed": 1, "designs": {"default": good,
                                                          "other": _edit(good, lambda d: d.update(sigma_hat="x"))}}
     path = _write(tmp_path, demo)
-    code, err, _ = run_cli(["gains", path, "--bandwidth", "1000"], capsys)
+    code, err, _ = run_cli_output(["gains", path, "--bandwidth", "1000"], capsys)
     assert_one_sentence(code, err, str(path), "designs.other.sigma_hat is a string")
 
 
