@@ -70,3 +70,11 @@ def test_step_and_samples():
 def test_chirp_above_nyquist_is_refused():
     with pytest.raises(dc.PlanError, match="Nyquist"):
         wf.chirp(100, FS, amplitude=1.0, f_start=10.0, f_stop=15_000.0)
+
+
+def test_prbs_with_a_bit_far_longer_than_the_segment_costs_nothing():
+    """A bit rate far below the sample rate (a fuzzed plan found 1e-300 Hz) holds one level; O(n) memory."""
+    from drivecal.plan import waveforms
+
+    levels = waveforms.prbs(100, 20e3, amplitude=2.0, bit_rate=1e-300)
+    assert levels.shape == (100,) and np.all(levels == levels[0]) and abs(levels[0]) == 2.0

@@ -4,8 +4,8 @@ from .. import _setup  # noqa: F401  (float64 and the compilation cache, before 
 from ._mismatch import ALPHA, EFFECTS, unmodelled_effects
 from ._saturation import LevelEstimate, MIN_LEVEL_RATIO, SaturationCheck, Z_LIMIT, check_saturation
 from ._verdict import SIGMA_RATIO_MAX, residual_checks, verdict
-from ._whiteness import WHITENESS_ALPHA, WHITENESS_LAGS, ljung_box, whiteness_rule
+from ._whiteness import WHITENESS_ALPHA, WHITENESS_LAGS, ljung_box, null_sf, whiteness_rule
 
 __all__ = ["ALPHA", "EFFECTS", "LevelEstimate", "MIN_LEVEL_RATIO", "SIGMA_RATIO_MAX", "SaturationCheck",
-           "WHITENESS_ALPHA", "WHITENESS_LAGS", "Z_LIMIT", "check_saturation", "ljung_box", "residual_checks",
-           "unmodelled_effects", "verdict", "whiteness_rule"]
+           "WHITENESS_ALPHA", "WHITENESS_LAGS", "Z_LIMIT", "check_saturation", "ljung_box", "null_sf",
+           "residual_checks", "unmodelled_effects", "verdict", "whiteness_rule"]

@@ -185,8 +185,10 @@ def prbs(
     if hold < 1:
         raise PlanError(f"prbs: bit_rate {bit_rate:g} Hz is above the sample rate {sample_rate:g} Hz.")
     bits = _maximal_length_sequence(order, seed)
-    levels = np.repeat(2.0 * bits - 1.0, hold)
-    return offset + amplitude * xp.asarray(np.resize(levels, n))
+    # Sample k carries bit (k // hold) of the repeating sequence: O(n) memory whatever the hold (a bit rate far
+    # below the sample rate must not build the whole held sequence first).
+    levels = 2.0 * bits[(np.arange(n) // min(hold, max(n, 1))) % bits.size] - 1.0
+    return offset + amplitude * xp.asarray(levels)
 
 
 def samples(n: int, sample_rate: float, *, values) -> np.ndarray:
