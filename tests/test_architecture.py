@@ -29,6 +29,7 @@ LAYERS: tuple[frozenset[str], ...] = tuple(frozenset(x) for x in (
     {"results"},
     {"fitting"},
     {"diagnose"},
+    {"selection"},
     {"design"},
     {"report"},
     {"fleet"},

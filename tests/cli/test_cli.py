@@ -205,8 +205,12 @@ def test_fit_exit_status_is_the_verdicts(tmp_path, poor_bench, capsys):
     assert main(["fit", str(poor), "--json"]) == Status.PARTIAL.exit_code == 3
     doc = json.loads(capsys.readouterr().out)
     assert doc["verdict"]["status"] == "partial"
-    # A realistic inverter (a one-sample delay the default fit does not model): model mismatch.
-    assert main(["fit", str(EXAMPLES / "inverter_bench.csv")]) == Status.MISMATCH.exit_code == 4
+    # A realistic inverter (a one-sample delay, dead time, offsets) with its effects left out: model mismatch,
+    # the delay named first. The default (--effects auto) finds them: test_default_fit_finds_the_inverter.
+    assert main(["fit", str(EXAMPLES / "inverter_bench.csv"), "--effects", "none", "--json"]) == 4
+    doc = json.loads(capsys.readouterr().out)
+    assert Status.MISMATCH.exit_code == 4 and doc["verdict"]["status"] == "mismatch"
+    assert doc["verdict"]["headline"].startswith("model mismatch suspected: most likely")
 
 
 def test_a_fit_that_did_not_converge_exits_5():

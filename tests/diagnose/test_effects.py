@@ -91,7 +91,7 @@ def test_diagnostics_flag_the_plain_fit_and_clear_the_full_one(plain_fit, effect
                             noise_sigma=NOISE)
     assert plain["verdict"]["status"] == "mismatch"
     suspected = {e["effect"] for e in plain["residuals"]["unmodelled_effects"] if e["suspected"]}
-    assert "dead time" in suspected
+    assert "dead_time" in suspected
     assert any("dead time" in d and "v_dead" in d for d in plain["verdict"]["details"])
     assert any(s["i_d"]["rms"] > 1.5 * NOISE or s["i_q"]["rms"] > 1.5 * NOISE
                for s in plain["residuals"]["per_segment"])

@@ -13,6 +13,10 @@ The inverter, per carrier period ``[t_k, t_k + T)``, ``T = 1 / sample_rate``
 
 * Computation delay: the period applies the command of sample
   ``k - delay_samples`` (0 V before the first one: each segment starts from rest).
+  A half-sample delay (0.5, 1.5, ...: the duty register is loaded at the
+  carrier valley, mid-period) applies the command of ``k - floor(delay) - 1``
+  up to the valley and that of ``k - floor(delay)`` after it: the rising
+  edges follow the one, the falling edges the other.
 * Modulation: the command is taken to phase references at the rotor's
   electrical angle at mid-period, ``p * (theta_m(t_k) + w_m(t_k) * T / 2)``
   (a drive with an encoder does this), then to duty cycles ``d_x`` by sine-
@@ -121,15 +125,17 @@ def duty_cycles(v_abc: np.ndarray, v_dc: float, modulation: str = "svpwm") -> np
     return np.clip(0.5 + v / v_dc, 0.0, 1.0)
 
 
-def switching_instants(duty: np.ndarray, period: float, t_dead: float) -> np.ndarray:
+def switching_instants(duty: np.ndarray, period: float, t_dead: float, duty_fall: np.ndarray | None = None
+                       ) -> np.ndarray:
     """Edges of each leg within the period (s from its start), shape (..., 3) -> (..., 3, 4).
 
     ``[a, a + t_dead, b, b + t_dead]`` with the gate high on ``[a, b]``,
-    ``a = (1 - d) T/2``, ``b = (1 + d) T/2``, all clipped to ``[0, T]``.
+    ``a = (1 - d) T/2``, ``b = (1 + d_fall) T/2`` (``d_fall = d`` unless the
+    duty is reloaded at the valley), all clipped to ``[0, T]``.
     """
     d = np.asarray(duty, dtype=float)
     a = (1.0 - d) * period / 2.0
-    b = (1.0 + d) * period / 2.0
+    b = (1.0 + (d if duty_fall is None else np.asarray(duty_fall, dtype=float))) * period / 2.0
     return np.clip(np.stack([a, a + t_dead, b, b + t_dead], axis=-1), 0.0, period)
 
 
@@ -198,24 +204,26 @@ def simulate_segment(segment: Segment, motor: MotorParams, sample_rate: float, v
         v_dc: DC-link voltage (V).
         switching: carrier-comparison PWM (True) or the ideal averaged inverter (False).
         modulation: ``"svpwm"`` or ``"sine"``.
-        delay_samples: computation delay (whole samples, >= 0).
+        delay_samples: computation delay (samples, a multiple of 0.5 >= 0).
         t_dead: dead time per switching edge (s).
         v_f: device forward drop (V).
         substeps: RK4 steps per carrier period on a uniform grid, to which every
             switching instant is added (so no step straddles an edge).
     """
-    if int(delay_samples) != delay_samples or delay_samples < 0:
-        raise ValueError(f"delay_samples must be a whole number >= 0, got {delay_samples!r}")
+    if int(2 * delay_samples) != 2 * delay_samples or delay_samples < 0:
+        raise ValueError(f"delay_samples must be a multiple of 0.5 >= 0, got {delay_samples!r}")
     if not switching and (t_dead != 0.0 or v_f != 0.0):
         raise ValueError("the averaged inverter (switching=False) has no dead time or device drop")
     commands = segment.voltages(sample_rate)
     n = commands.shape[0]
     d = int(delay_samples)
+    half = delay_samples != d  # the duty is reloaded at the valley
     applied = np.concatenate([np.zeros((d, 2)), commands])[:n]
+    earlier = np.concatenate([np.zeros((d + 1, 2)), commands])[:n] if half else applied
     period = 1.0 / sample_rate
     p = float(motor.pole_pairs)
     locked = bool(segment.locked)
-    grid = np.linspace(0.0, period, int(substeps) + 1)
+    grid = np.unique(np.append(np.linspace(0.0, period, int(substeps) + 1), period / 2.0))
 
     states = np.zeros((n, 4))
     duty = np.full((n, 3), np.nan)
@@ -226,16 +234,23 @@ def simulate_segment(segment: Segment, motor: MotorParams, sample_rate: float, v
         states[k] = x
         v_d, v_q = float(applied[k, 0]), float(applied[k, 1])
         if not switching:
-            def f(s, v_d=v_d, v_q=v_q):
-                return plant_derivatives(s, (v_d, v_q), motor, locked), (0.0,) * 6
+            for t0, h in zip(grid[:-1].tolist(), np.diff(grid).tolist()):
+                v = earlier[k] if t0 < period / 2.0 else applied[k]
 
-            for h in np.diff(grid):
-                x, _ = _rk4(f, x, float(h))
+                def f(s, v=(float(v[0]), float(v[1]))):
+                    return plant_derivatives(s, v, motor, locked), (0.0,) * 6
+
+                x, _ = _rk4(f, x, h)
             continue
         theta_mid = p * (x[3] + x[2] * period / 2.0)
         ref = np.array(dq_to_abc(v_d, v_q, theta_mid, xp=math))
         duty[k] = duty_cycles(ref, v_dc, modulation)
-        edges = switching_instants(duty[k], period, t_dead)
+        rise = duty[k]
+        if half:  # each half period's average is its own command's
+            ref_before = np.array(dq_to_abc(float(earlier[k, 0]), float(earlier[k, 1]), theta_mid, xp=math))
+            rise = duty_cycles(ref_before, v_dc, modulation)
+            ref = 0.5 * (ref + ref_before)
+        edges = switching_instants(rise, period, t_dead, duty_fall=duty[k])
         tau = np.unique(np.concatenate([grid, edges.ravel()]))
         tau = tau[np.concatenate([[True], np.diff(tau) > 1e-12 * period])]
         tau[-1] = period
@@ -253,7 +268,7 @@ def simulate_segment(segment: Segment, motor: MotorParams, sample_rate: float, v
 
             x, volts = _rk4(f, x, h)
             integral += volts
-        pole_err[k] = integral[3:] / period - (duty[k] - 0.5) * v_dc
+        pole_err[k] = integral[3:] / period - (0.5 * (rise + duty[k]) - 0.5) * v_dc
         phase_err[k] = integral[:3] / period - ref
     states[n - 1] = x
     i_abc = np.stack(dq_to_abc(states[:, 0], states[:, 1], p * states[:, 3], xp=np), axis=1)

@@ -114,7 +114,6 @@ def test_layout_from_segments_and_stacking():
     experiment = CASES["measured speed"][1]
     assert experiment.segments == ((0, 120, "locked"), (120, 250, "locked"), (250, 650, "measured"))
     assert CASES["default plan"][1].segments == ((0, 200, "locked"), (200, 400, "locked"), (400, 1400, "free"))
-    assert experiment.with_extra_delay(1).segments == experiment.segments
     assert stack_experiments([experiment, experiment]).segments == experiment.segments
     other = dc.Experiment.from_segments([np.zeros((650, 2))], [True], 1.0 / FS)
     assert stack_experiments([experiment, other]).segments is None  # layouts differ: one scan

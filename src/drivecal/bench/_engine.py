@@ -35,14 +35,39 @@ def _quiet_jaxonomy() -> None:
     logging.getLogger("jaxonomy").setLevel(logging.WARNING)
 
 
+#: A fractional delay is run on a grid this many times finer at most (it must be a whole number of its steps).
+MAX_DELAY_SUBDIVISION = 16
+
+
+def _delay_grid(delay_samples: float) -> tuple[int, int]:
+    """``(k, n)``: the engine runs ``k`` steps per sample and the delay is ``n`` of them (``n / k = delay``)."""
+    d = float(delay_samples)
+    for k in range(1, MAX_DELAY_SUBDIVISION + 1):
+        if d >= 0 and abs(d * k - round(d * k)) < 1e-9:
+            return k, int(round(d * k))
+    raise PlanError(f"delay_samples = {delay_samples!r}: the engine bench applies delays of a whole number of "
+                    f"1/k samples (k up to {MAX_DELAY_SUBDIVISION}), e.g. 0, 0.5, 1, 1.5, 2, >= 0")
+
+
 def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float,
-                 delay_samples: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                 delay_samples: float = 0) -> tuple[np.ndarray, np.ndarray]:
     """Run one segment on the engine; return sample times (s) and states (N, 4).
 
     The bench effects of ``motor`` act as on a real bench: R at the segment's
     winding temperature, the inverter's dead-time error fed back from the
     block's currents and angle, the commands applied ``delay_samples`` late.
+    A fractional delay (0.5, 1.5: the PWM loads its duty mid-period) runs the
+    engine on a grid ``k`` times finer, each command held for ``k`` of its
+    steps and applied ``delay * k`` of them late; the states are read back
+    at the sample instants.
     """
+    k, late = _delay_grid(delay_samples)
+    if k > 1:
+        fine = Segment(segment.name, segment.duration, segment.locked,
+                       np.repeat(segment.voltages(sample_rate)[:, 0], k),
+                       np.repeat(segment.voltages(sample_rate)[:, 1], k), temperature=segment.temperature)
+        t, states = _run_segment(fine, motor, sample_rate * k, late)
+        return t[::k], states[::k]
     warm = motor
     if segment.temperature is not None:
         warm = motor.replace(R=float(resistance_at(motor, float(segment.temperature))))
@@ -173,7 +198,7 @@ def _run_on_engine(setup, sample_rate: float, *, label: str):
 
 
 def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
-                 delay_samples: int = 0) -> BenchData:
+                 delay_samples: float = 0) -> BenchData:
     """Noise-free bench data: the plan run on the Jaxonomy engine.
 
     The bench effects set in ``motor`` are part of the truth: dead time
@@ -185,8 +210,9 @@ def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
         motor: the true machine, with its inverter and sensors.
         record_speed: also record the mechanical speed ``w_m`` (rad/s) and the
             electrical angle ``theta_e`` (rad), as an encoder would.
-        delay_samples: the inverter's PWM/computation delay (samples); the
-            file records the commands, as a real inverter log does.
+        delay_samples: the inverter's PWM/computation delay (samples; 0.5,
+            1.5 where the PWM loads its duty mid-period); the file records the
+            commands, as a real inverter log does.
     """
     plan.check_feasible()
     _quiet_jaxonomy()

@@ -30,8 +30,12 @@ if TYPE_CHECKING:
               help="Use a measured w_m as an input on free segments (see `drivecal fit --help`).")
 @click.option("--outlier-z", type=_Positive(), default=5.0, show_default=True,
               help="Robust z-score (median/MAD of the batch) beyond which a parameter flags a motor.")
+@click.option("--effects", "effects", default="auto", show_default=True, metavar="auto|none|LIST",
+              help="Bench effects (delay, dead_time, offsets) as in `drivecal fit`; in a batch only the motors "
+                   "whose residuals are not white are fitted again with the effects the data support.")
 @click.option("--json", "as_json", is_flag=True, help="Print the run summary as JSON on stdout; no progress bar.")
-def batch(inputs, out_path, motor_path, chunk, workers, scheduler, resume, measured_speed, outlier_z, as_json):
+def batch(inputs, out_path, motor_path, chunk, workers, scheduler, resume, measured_speed, outlier_z, effects,
+          as_json):
     """Calibrate many motors: one bench file per motor, one results table.
 
     \b
@@ -52,7 +56,9 @@ def batch(inputs, out_path, motor_path, chunk, workers, scheduler, resume, measu
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from ..fleet import run_batch, tune_for_batch
+    from ..selection import parse_effects
 
+    chosen = parse_effects(effects)
     tune_for_batch()  # this process is the batch: before JAX starts its threads
     motor_file = _load_motor(motor_path)
     console = _console(as_json)
@@ -75,7 +81,7 @@ def batch(inputs, out_path, motor_path, chunk, workers, scheduler, resume, measu
 
         summary = run_batch(inputs, out_path, motor_file, chunk=chunk, workers=workers,
                             scheduler=scheduler, resume=resume, measured_speed=measured_speed,
-                            outlier_z=outlier_z, progress=progress)
+                            outlier_z=outlier_z, progress=progress, effects=chosen)
     if as_json:
         click.echo(json.dumps(summary.to_dict(), indent=2))
     else:

@@ -52,13 +52,18 @@ def _fit_table(cal: Calibration) -> Table:
               help="Comma-separated parameters to estimate, replacing the motor file's 'estimate', e.g. "
                    "R,Ld,Lq,lambda_m,v_dead,offset_d,offset_q (bench effects: v_dead, offset_d, offset_q, "
                    "offset_a, offset_b, alpha_R).")
-@click.option("--delay", "delay_samples", type=click.IntRange(0, 100), default=None,
-              help="The inverter's PWM/computation delay [samples], replacing the motor file's 'delay_samples'.")
+@click.option("--delay", "delay_samples", type=click.FloatRange(0, 100), default=None,
+              help="Fix the inverter's PWM/computation delay [samples, may be fractional: 0.5, 1.5], replacing "
+                   "the motor file's 'delay_samples'; without it the delay is found from the data (--effects).")
+@click.option("--effects", "effects", default="auto", show_default=True, metavar="auto|none|LIST",
+              help="Bench effects to model: 'auto' fits those the data support (delay, dead_time, offsets; "
+                   "one at a time, largest evidence first, each kept only if a likelihood-ratio test supports "
+                   "it), 'none' fits none, or a comma-separated list fits those.")
 @click.option("--out", "out_dir", type=click.Path(), default=None,
               help="Directory for report.json, report.html and the PNG figures (created if missing; its parent "
                    "must exist).")
 @click.option("--json", "as_json", is_flag=True, help="Print the result JSON on stdout instead of the table.")
-def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_samples, out_dir, as_json):
+def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_samples, effects, out_dir, as_json):
     """Calibrate R, Ld, Lq, lambda_m from a bench file (.csv, .parquet or .mat).
 
     \b
@@ -68,8 +73,10 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
     theta_m [rad].
     The motor file's values are the starting point and the prior; a parameter
     the recording cannot identify is held there and reported as such. Bench
-    effects (dead time, sensor offsets, temperature coefficient) are fitted
-    jointly when named in --estimate or the motor file's 'estimate'.
+    effects (the inverter's delay, its dead time, sensor offsets) are found
+    from the data by default (--effects auto) and reported with the evidence;
+    any parameter named in --estimate or the motor file's 'estimate' (also
+    alpha_R, offset_a, offset_b) is fitted whatever the tests say.
 
     \b
     Exit status: the verdict's, so a test-station script can gate on it:
@@ -85,29 +92,37 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
 
     from ..data import load_bench
     from ..diagnose import check_saturation
-    from ..fitting import fit
     from ..identify import check_requested
     from ..report import build_result
     from ..results import Status
+    from ..selection import parse_effects, select_effects
 
+    chosen = parse_effects(effects)
     motor_file = _load_motor(motor_path)
     if estimate is not None:
         motor_file = motor_file.model_copy(update={"estimate": _estimate_names(estimate)})
     if delay_samples is not None:
-        motor_file = motor_file.model_copy(update={"delay_samples": delay_samples})
+        motor_file = motor_file.model_copy(update={"delay_samples": delay_samples,
+                                                   "motor": motor_file.motor.replace(delay=delay_samples)})
+    names = motor_file.names
+    if delay_samples is not None:  # a delay given on the command line is fixed, not searched
+        names = tuple(n for n in names if n != "delay")
+        chosen = chosen if not isinstance(chosen, tuple) else tuple(e for e in chosen if e != "delay")
     prior = motor_file.motor
     bench = load_bench(bench_path, pole_pairs=float(prior.pole_pairs), nominal_R=float(prior.R))
     experiment = bench.experiment(measured_speed=measured_speed, delay_samples=motor_file.delay_samples)
     if motor_file.estimate is not None:
         check_requested(motor_file.names, experiment, bench_path)
     console = _console(as_json)
-    with console.status("checking identifiability and fitting..."):
-        cal = fit(bench, prior, names=motor_file.names, measured_speed=measured_speed,
-                  delay_samples=motor_file.delay_samples)
+    with console.status("checking identifiability, fitting and choosing the bench effects..."):
+        selection = select_effects(experiment, bench.currents, prior, names=names, effects=chosen,
+                                   source=bench.source, fixed_delay=delay_samples is not None)
+        cal = selection.calibration
         saturation = check_saturation(bench, prior)
         payload = build_result(cal, bench, experiment=experiment, noise_sigma=noise, input_path=bench_path,
                                motor_file=motor_path, measured_speed=measured_speed and bench.has_measured_speed,
-                               saturation=saturation.to_dict() if saturation.tested else None)
+                               saturation=saturation.to_dict() if saturation.tested else None,
+                               effects=selection.to_dict())
         if out_dir is not None:
             written = _write_fit_outputs(cal, payload, out_dir)
     status = Status(payload["verdict"]["status"])
@@ -122,6 +137,7 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
     for name, why in ident.reasons.items():
         console.print(f"  [red]{name}[/red]: {why}")
     console.print(_fit_table(cal))
+    console.print(_effects_line(selection))
     verdict = payload["verdict"]
     colour = "green" if status is Status.CALIBRATED else "red"
     console.print(f"verdict: [{colour}]{escape(verdict['headline'])}[/{colour}]")
@@ -133,6 +149,20 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
     if out_dir is not None:
         console.print(f"wrote {len(written)} files to {out_dir}/: " + ", ".join(p.name for p in written))
     return status.exit_code
+
+
+def _effects_line(selection) -> str:
+    """One line per bench effect: included or not, and the evidence."""
+    from rich.markup import escape
+
+    lines = [f"bench effects ({selection.mode}):"]
+    for c in selection.choices:
+        mark = "[green]fitted[/green]" if c.included else "[dim]not fitted[/dim]"
+        evidence = f", {c.test} p = {c.p_value:.2g}" if c.test and c.p_value == c.p_value else ""
+        value = "; ".join(f"{n} = {_fmt(v)} ± {1.96 * s:.2g} (95 %)" for n, (v, s) in c.estimate.items()
+                          if s == s and s > 0)
+        lines.append(f"  {c.effect}: {mark} ({escape(c.how)}{evidence})" + (f": {escape(value)}" if value else ""))
+    return "\n".join(lines)
 
 
 def _estimate_names(text: str) -> tuple[str, ...]:

@@ -98,7 +98,7 @@ class BenchData:
         """Some free segment carries a measured speed ``w_m``."""
         return any(s.w_m is not None and not s.locked for s in self.segments)
 
-    def experiment(self, measured_speed: bool = True, delay_samples: int = 0, host: bool = False) -> Experiment:
+    def experiment(self, measured_speed: bool = True, delay_samples: float = 0.0, host: bool = False) -> Experiment:
         """The applied voltages and rotor conditions, for the forward model.
 
         Args:
@@ -106,7 +106,8 @@ class BenchData:
                 an input of the electrical equations (J and B then play no
                 part); when False the speed is simulated from J and B.
             delay_samples: the inverter's PWM/computation delay (samples): the
-                recorded command k acts at sample k + delay_samples.
+                recorded command k acts at sample k + delay_samples; its whole samples are
+                applied here, a fraction by the model (``MotorParams.delay``).
             host: numpy arrays (see ``Experiment.from_segments``).
         """
         return _experiment([self], measured_speed, delay_samples, host, stacked=False)
@@ -188,7 +189,7 @@ class BenchData:
         return path
 
 
-def stacked_experiment(benches: list[BenchData], measured_speed: bool = True, delay_samples: int = 0,
+def stacked_experiment(benches: list[BenchData], measured_speed: bool = True, delay_samples: float = 0.0,
                        host: bool = False) -> Experiment:
     """The experiments of benches of one plan shape, stacked along a leading axis (B, ...).
 
@@ -199,7 +200,7 @@ def stacked_experiment(benches: list[BenchData], measured_speed: bool = True, de
     return _experiment(benches, measured_speed, delay_samples, host, stacked=True)
 
 
-def _experiment(benches: list[BenchData], measured_speed: bool, delay_samples: int, host: bool,
+def _experiment(benches: list[BenchData], measured_speed: bool, delay_samples: float, host: bool,
                 stacked: bool) -> Experiment:
     join = np.stack if stacked else (lambda arrays: arrays[0])
 

@@ -42,9 +42,9 @@ class MotorSpec(StrictModel):
     offset_b: quantity("current") = 0.0
     alpha_R: quantity("temperature coefficient") = float(DEFAULT_MOTOR.alpha_R)
     T_ref: quantity("temperature") = float(DEFAULT_MOTOR.T_ref)
-    delay_samples: int = Field(default=0, ge=0, le=100)
-    estimate: list[Literal["R", "Ld", "Lq", "lambda_m", "v_dead", "offset_d", "offset_q", "offset_a", "offset_b",
-                           "alpha_R"]] | None = None
+    delay_samples: float = Field(default=0.0, ge=0, le=100, allow_inf_nan=False)
+    estimate: list[Literal["R", "Ld", "Lq", "lambda_m", "delay", "v_dead", "i_dead", "offset_d", "offset_q",
+                           "offset_a", "offset_b", "alpha_R"]] | None = None
 
 
 class MotorFile(BaseModel):
@@ -56,7 +56,8 @@ class MotorFile(BaseModel):
             lambda_m, holding any the data cannot identify at the nominal
             value". Bench effects (v_dead, offsets, alpha_R) are estimated
             only when listed here.
-        delay_samples: the inverter's PWM/computation delay (samples).
+        delay_samples: the inverter's nominal PWM/computation delay (samples, may be
+            fractional: 0.5, 1.5 where the PWM updates mid-period); also ``motor.delay``.
         source: the file path, for messages.
         defaulted: the keys that matter (:data:`REQUIRED_KEYS`) the file left out, which took
             the default motor's values (the CLI warns about them).
@@ -65,7 +66,7 @@ class MotorFile(BaseModel):
     model_config = ConfigDict(frozen=True, arbitrary_types_allowed=True)
     motor: MotorParams
     estimate: tuple[str, ...] | None = None
-    delay_samples: int = 0
+    delay_samples: float = 0.0
     source: str = "default motor"
     defaulted: tuple[str, ...] = ()
 
@@ -105,7 +106,7 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
             raise DrivecalError(f"{source}: 'v_dead' is a voltage magnitude and must be >= 0, got {value!r}.")
         if not value > 0 and name not in signed + ("v_dead",):
             raise DrivecalError(f"{source}: '{name}' must be a positive number, got {value!r}.")
-    motor = MotorParams(**{k: float(v) for k, v in values.items()})
+    motor = MotorParams(**{k: float(v) for k, v in values.items()}, delay=float(spec.delay_samples))
     estimate = None if spec.estimate is None else tuple(spec.estimate)
     if estimate is not None and not estimate:
         raise DrivecalError(f"{source}: 'estimate' is empty; list at least one of R, Ld, Lq, lambda_m.")

@@ -1,20 +1,25 @@
 """Which unmodelled bench effect do the residuals point to? Score tests.
 
-After a fit, each bench effect the model left out (inverter dead time, current
-sensor offsets, a PWM delay other than the one assumed) is tested with a Lagrange
-multiplier (score) test: does the effect's signature — its sensitivity column
-``d(predicted currents)/d(effect)`` at the fitted motor, made orthogonal to
-the fitted parameters' columns — explain more of the residuals than noise
-would? Under a correct model the statistic
+After a fit, each bench effect the model left out (a PWM/computation delay
+other than the one assumed, inverter dead time, current-sensor offsets) is
+tested with a Lagrange multiplier (score) test: does the effect's signature —
+its sensitivity columns ``d(predicted currents)/d(effect's parameters)`` at
+the fitted motor, made orthogonal to the fitted parameters' columns — explain
+more of the residuals than noise would? Under a correct model the statistic
 
     S = || P r ||^2 / sigma_hat^2,   P the projection onto that signature,
 
-is chi-squared with as many degrees of freedom as the effect has parameters
-(two-sided: an effect larger or smaller than modelled raises it alike; for the
-delay the residual's sign along the signature says which, and the advice is
-"raise" or "lower" accordingly).
-An effect whose p-value falls below ``ALPHA`` (Bonferroni over the effects
-tested) is named in the verdict with the fix: add it to ``estimate``.
+is chi-squared with as many degrees of freedom as the effect has parameters.
+It is two-sided: an effect larger or smaller than modelled raises it alike,
+and for the delay the residual's sign along the signature says which
+("raise" or "lower"). A delay below zero cannot be: at a nominal delay of 0
+only "more" is a finding.
+
+The same projection gives the effect's one-step (Gauss-Newton) estimate from
+the fit, ``theta_0 + (E^T E)^-1 E^T r`` with ``E`` the orthogonalised columns,
+and its standard error ``sigma_hat * sqrt(diag((E^T E)^-1))``: what the effect
+would be if it were fitted, without refitting. ``drivecal.selection`` uses the
+tests to choose which effects to fit; what is left after that is advised.
 """
 
 from __future__ import annotations
@@ -25,17 +30,21 @@ from typing import Any
 import numpy as np
 
 from .._stats import chi2_sf
-from ..model import Experiment, model_experiment, predicted_currents
+from ..model import Experiment, model_experiment, predicted_currents, with_experiment_delay
 from ..identify import sensitivity_jacobian
 from ..physics import MotorParams
 
 #: Family-wise false-alarm rate of the effect tests of one fit.
 ALPHA = 1e-3
 
-#: Effects tested when not in the model: name -> (parameters, plain-language signature).
-EFFECTS: dict[str, tuple[tuple[str, ...], str]] = {
-    "dead time": (("v_dead",), "inverter dead time (a voltage error against the current's sign)"),
-    "sensor offsets": (("offset_d", "offset_q"), "current-sensor offsets (a constant shift of i_d, i_q)"),
+#: Bench effects: name -> (parameters a fit adds, parameters the score test probes, plain-language signature).
+#: The dead time's transition width i_dead has no signature while v_dead is zero: it is fitted with v_dead.
+EFFECTS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
+    "delay": (("delay",), ("delay",), "a PWM/computation delay other than the one assumed"),
+    "dead_time": (("v_dead", "i_dead"), ("v_dead",),
+                  "inverter dead time (a voltage error against each phase current's sign)"),
+    "offsets": (("offset_d", "offset_q"), ("offset_d", "offset_q"),
+                       "current-sensor offsets (a constant shift of i_d, i_q)"),
 }
 
 
@@ -46,18 +55,54 @@ def _orthogonal_part(columns: np.ndarray, basis: np.ndarray) -> np.ndarray:
     return columns - basis @ coef
 
 
-def _score(residual: np.ndarray, signature: np.ndarray, fitted: np.ndarray,
-           sigma_hat: float) -> tuple[float, int, float]:
-    """Score statistic of ``signature`` (m, k) columns against the residual, its degrees of freedom, and the
-    sign of the residual along the first column's part the fit cannot absorb (+1: the effect is larger than
-    modelled, -1: smaller; the statistic itself is two-sided)."""
+@dataclasses.dataclass(frozen=True)
+class Score:
+    """A score test of one effect against a fit's residuals.
+
+    Attributes:
+        statistic: ``||P r||^2 / sigma_hat^2`` (-), chi-squared under no effect.
+        dof: its degrees of freedom (the signature's rank).
+        direction: sign of the residual along the first column's unabsorbed part:
+            +1 the effect is larger than modelled, -1 smaller.
+        step: one-step estimate of the probed parameters' change from the fit (their units), shape (k,).
+        step_se: its standard errors (their units), shape (k,).
+    """
+
+    statistic: float
+    dof: int
+    direction: float
+    step: np.ndarray
+    step_se: np.ndarray
+
+
+def score_test(residual: np.ndarray, signature: np.ndarray, fitted: np.ndarray, sigma_hat: float) -> Score:
+    """Score test of ``signature`` (m, k) columns against ``residual`` (m,) after a fit with columns ``fitted``."""
     e = _orthogonal_part(signature, fitted)
-    u, s, _ = np.linalg.svd(e, full_matrices=False)
+    u, s, vt = np.linalg.svd(e, full_matrices=False)
     keep = s > 1e-10 * max(float(s.max(initial=0.0)), 1e-300)
+    k = signature.shape[1]
     if not keep.any():
-        return float("nan"), 0, 0.0
+        return Score(float("nan"), 0, 0.0, np.full(k, np.nan), np.full(k, np.nan))
     proj = u[:, keep].T @ residual
-    return float(proj @ proj / sigma_hat**2), int(keep.sum()), float(np.sign(e[:, 0] @ residual))
+    pinv = (vt[keep].T / s[keep]) @ u[:, keep].T  # (E^T E)^+ E^T
+    cov = (vt[keep].T / s[keep] ** 2) @ vt[keep]
+    return Score(float(proj @ proj / sigma_hat**2), int(keep.sum()), float(np.sign(e[:, 0] @ residual)),
+                 pinv @ residual, sigma_hat * np.sqrt(np.diag(cov)))
+
+
+def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
+                      effects: tuple[str, ...]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The fitted parameters' sensitivity columns (m, n) and each effect's probe columns (m, k) at ``motor``.
+
+    ``m`` = 2 x samples (i_d and i_q interleaved per sample, as ``currents.reshape(-1)``).
+    """
+    probes = tuple(n for e in effects for n in EFFECTS[e][1] if n not in fit_names)
+    all_names = tuple(fit_names) + probes
+    # Sensitivity columns at v_dead = 0 need no sub-steps (they resolve the sign's turn at v_dead != 0).
+    probe = dataclasses.replace(model_experiment(experiment, motor, all_names), dead_time_substeps=1)
+    jac = np.asarray(sensitivity_jacobian(motor, probe, all_names))
+    columns = {e: jac[:, [all_names.index(n) for n in EFFECTS[e][1]]] for e in effects}
+    return jac[:, : len(fit_names)], columns
 
 
 def unmodelled_effects(
@@ -66,76 +111,69 @@ def unmodelled_effects(
     experiment: Experiment,
     currents: np.ndarray,
     sigma_hat: float,
-    delay_samples: int,
-    delayed_experiment: Experiment | None = None,
     predicted: np.ndarray | None = None,
+    effects: tuple[str, ...] | None = None,
 ) -> list[dict[str, Any]]:
     """Score tests of the bench effects missing from a fit.
 
     Args:
-        motor: the fitted motor (estimates in place).
+        motor: the fitted motor (estimates in place; its ``delay`` is the one the fit used).
         fit_names: the parameters the fit estimated.
         experiment: the experiment the fit used.
         currents: measured ``[i_d, i_q]`` (A), shape (M, 2).
         sigma_hat: residual standard deviation of the fit (A).
-        delay_samples: the delay the fit assumed (samples).
-        delayed_experiment: the same run with one more sample of delay
-            (``experiment.with_extra_delay(1)``), to test the delay; None
-            skips that test.
         predicted: the fit's predicted ``[i_d, i_q]`` (A), shape (M, 2), when
             already computed (the report has them); else computed here.
+        effects: the effects to test (default: every one of :data:`EFFECTS`
+            none of whose parameters the fit estimated).
 
     Returns:
-        Per tested effect: ``effect``, ``parameters``, ``statistic``, ``dof``,
-        ``p_value``, ``suspected`` and a ``message``.
+        Per tested effect, most significant first: ``effect``, ``parameters``,
+        ``statistic``, ``dof``, ``p_value``, ``p_threshold``, ``suspected``,
+        ``direction``, ``one_step`` (``{parameter: {"estimate", "se"}}``, the
+        one-step estimate and its standard error, SI units) and a ``message``.
     """
+    if effects is None:
+        effects = tuple(e for e, (params, _, _) in EFFECTS.items() if not set(params) & set(fit_names))
+    if not effects:
+        return []
+    motor = with_experiment_delay(motor, experiment)
     base = model_experiment(experiment, motor, fit_names)
     y = np.asarray(currents, dtype=float).reshape(-1)
     if predicted is None:
         predicted = predicted_currents(motor, base)
-    predicted = np.asarray(predicted, dtype=float).reshape(-1)
-    residual = y - predicted
-
-    candidates = {k: v for k, v in EFFECTS.items() if not set(v[0]) & set(fit_names)}
-    probe_names = tuple(n for params, _ in candidates.values() for n in params)
-    all_names = tuple(fit_names) + probe_names
-    # Sensitivity columns at v_dead = 0 need no sub-steps (they resolve the sign's turn at v_dead != 0).
-    probe = dataclasses.replace(model_experiment(base, motor, all_names), dead_time_substeps=1)
-
-    jac = np.asarray(sensitivity_jacobian(motor, probe, all_names))
-    fitted = jac[:, : len(fit_names)]
-    tests: list[tuple[str, tuple[str, ...], str, np.ndarray]] = []
-    for effect, (params, what) in candidates.items():
-        idx = [all_names.index(n) for n in params]
-        tests.append((effect, params, what, jac[:, idx]))
-    if delayed_experiment is not None:
-        later = model_experiment(delayed_experiment, motor, fit_names)
-        column = (predicted_currents(motor, later).reshape(-1) - predicted)[:, None]
-        tests.append(("delay", ("delay_samples",), f"a PWM/computation delay other than the {delay_samples} "
-                      "sample(s) assumed", column))
-
+    residual = y - np.asarray(predicted, dtype=float).reshape(-1)
+    fitted, columns = effect_signatures(motor, fit_names, base, effects)
+    threshold = ALPHA / len(effects)
+    delay = float(motor.delay)
     out = []
-    threshold = ALPHA / max(len(tests), 1)
-    for effect, params, what, signature in tests:
-        statistic, dof, direction = _score(residual, signature, fitted, sigma_hat)
-        p = float(chi2_sf(statistic, dof)) if dof else float("nan")
-        suspected = bool(dof and p < threshold)
-        fix = "add " + ", ".join(params) + " to 'estimate' (motor file) or --estimate"
+    for effect in effects:
+        params, probes, what = EFFECTS[effect]
+        score = score_test(residual, columns[effect], fitted, sigma_hat)
+        p = float(chi2_sf(score.statistic, score.dof)) if score.dof else float("nan")
+        suspected = bool(score.dof and p < threshold)
+        fix = "add " + ", ".join(params) + " to 'estimate' (motor file) or --estimate, or use --effects auto"
         if effect == "delay":
-            # Two-sided: the residual along the extra-delay signature says which way the delay is off.
-            more = direction >= 0 or delay_samples == 0
-            what = (f"{'more' if more else 'less'} PWM/computation delay than the {delay_samples} sample(s) "
-                    "assumed")
-            fix = f"{'raise' if more else 'lower'} 'delay_samples' (motor file) or --delay"
+            # Two-sided, but a delay cannot go below zero: at 0 only "more" is a finding.
+            more = score.direction >= 0
+            suspected = suspected and (more or delay > 0)
+            what = f"{'more' if more else 'less'} PWM/computation delay than the {delay:g} sample(s) assumed"
+            fix = f"{'raise' if more else 'lower'} 'delay_samples' (motor file) or --delay, or use --effects auto"
+        one_step = {n: {"estimate": float(getattr(motor, n)) + float(d), "se": float(se)}
+                    for n, d, se in zip(probes, score.step, score.step_se)}
         out.append({
             "effect": effect,
             "parameters": list(params),
-            "statistic": statistic,
-            "dof": dof,
+            "statistic": score.statistic,
+            "dof": score.dof,
             "p_value": p,
             "p_threshold": threshold,
             "suspected": suspected,
+            "direction": score.direction,
+            "one_step": one_step,
             "message": f"the residuals carry the signature of {what} (score test p = {p:.2g}); {fix}"
             if suspected else f"no sign of {what} (score test p = {p:.2g})",
         })
+    # The most likely cause first.
+    out.sort(key=lambda e: (not e["suspected"], e["p_value"] if np.isfinite(e["p_value"]) else 2.0))
     return out

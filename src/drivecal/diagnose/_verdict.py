@@ -14,8 +14,9 @@ The criterion, kept simple on purpose so a reader can check it by hand:
      sensor noise, which is white; an unmodelled effect (a wrong R, saturation,
      dead time) leaves a smooth, autocorrelated trace.
    * a score test finds the signature of a bench effect the model left out
-     (dead time, sensor offsets, more delay; ``diagnose/_mismatch.py``) at family-wise
-     level 1e-3: the detail names the effect and the fix.
+     (delay, dead time, sensor offsets; ``diagnose/_mismatch.py``) at family-wise
+     level 1e-3: the most significant one is named first, in the headline
+     and the first detail, with its fix.
    A sigma_hat well *below* the stated noise is reported as a note only.
 3. **partially calibrated: <names> not identifiable by this plan** when the
    identifiability check held some parameters at their prior.
@@ -103,6 +104,11 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
     res = result.get("residuals") or {}
     details = []
     mismatch = False
+    # The one most likely unmodelled cause first (the score tests come most significant first), with its fix.
+    causes = [e for e in res.get("unmodelled_effects") or [] if e["suspected"]]
+    if causes:
+        mismatch = True
+        details += [e["message"] for e in causes]
     if res and not res.get("noise_consistent", True):
         mismatch = True
         details.append(
@@ -115,19 +121,23 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
         bad = [f"{s['name']} {ax}" for s in res["per_segment"] for ax in ("i_d", "i_q")
                if s[ax]["ljung_box_p"] is not None and s[ax]["ljung_box_p"] < res["whiteness_p_threshold"]]
         details.append("residuals are not white (Ljung-Box, " + ", ".join(bad) + "): a systematic, unmodelled effect")
-    for effect in res.get("unmodelled_effects") or []:
-        if effect["suspected"]:
-            mismatch = True
-            details.append(effect["message"])
     if res.get("sigma_ratio") is not None and res["sigma_ratio"] < 1.0 / SIGMA_RATIO_MAX:
         details.append(f"note: sigma_hat is only {res['sigma_ratio']:.2f} times the stated sensor noise; "
                        "the stated noise may be too pessimistic")
+    for choice in (result.get("effects") or {}).get("effects", []):
+        if choice["included"] and choice["how"] == "selected":
+            shown = ", ".join(f"{n} = {v['value']:.4g} ± {1.96 * v['se']:.2g} (95 %)" for n, v in choice["estimate"].items()
+                              if v["value"] is not None and v["se"] is not None)
+            details.append(f"bench effect fitted because the data support it: {choice['effect'].replace('_', ' ')}"
+                           f" ({shown}; likelihood-ratio p = {choice['p_value']:.2g})")
     if not_ident:
         details.append(f"{', '.join(not_ident)} not identifiable by this plan: held at the prior, not calibrated")
     if not result["converged"]:
         status, headline = Status.NOT_CONVERGED, f"not calibrated: the fit did not converge ({result.get('message', '')})"
     elif mismatch:
         status, headline = Status.MISMATCH, "model mismatch suspected"
+        if causes:
+            headline += f": most likely {causes[0]['effect'].replace('_', ' ')} (see the first detail for the fix)"
     elif not_ident:
         status, headline = Status.PARTIAL, f"partially calibrated: {', '.join(not_ident)} not identifiable by this plan"
     else:

@@ -25,7 +25,7 @@ from .._stats import t_ppf
 from ..data import BenchData
 from ..errors import DrivecalError
 from ..identify import Identifiability, assess_identifiability
-from ..model import Experiment, model_experiment
+from ..model import Experiment, model_experiment, with_experiment_delay
 from ..physics import ESTIMATED, MotorParams, from_search, parameter_values, to_search
 from ..results import Calibration
 from ._options import FitOptions
@@ -50,7 +50,7 @@ def fit_currents(
     names: tuple[str, ...] = ESTIMATED,
     options: FitOptions = FitOptions(),
     source: str = "synthetic bench",
-    delay_samples: int = 0,
+    delay_samples: float | None = None,
 ) -> Calibration:
     """Fit measured currents of a known experiment; batched if ``currents`` is.
 
@@ -69,8 +69,9 @@ def fit_currents(
         names: parameters to estimate.
         options: solver settings.
         source: label of the data, for reports.
-        delay_samples: the inverter delay already applied in ``experiment``
-            (recorded in the result).
+        delay_samples: the nominal inverter delay (samples) recorded in the
+            result; default ``prior.delay`` (whose whole samples the experiment
+            applies; see ``Experiment.base_delay``).
 
     Returns:
         A :class:`Calibration`, with a leading batch axis when ``currents`` has one.
@@ -88,6 +89,7 @@ def fit_currents(
     if per_dataset and (not batched or experiment.voltages.shape[0] != currents.shape[0]):
         raise DrivecalError(f"{source}: a batch of {experiment.voltages.shape[0]} experiments needs currents of "
                             f"shape ({experiment.voltages.shape[0]}, M, 2), got {currents.shape}.")
+    prior = with_experiment_delay(prior, experiment)
     experiment = model_experiment(experiment, prior, names)
     # A batch of experiments shares one plan shape; judge it on the first (the structure is common).
     first = jax.tree_util.tree_map(lambda a: a[0], experiment) if per_dataset else experiment
@@ -147,7 +149,7 @@ def fit_currents(
         t_factor=t_factor,
         source=source,
         history=history,
-        delay_samples=int(delay_samples),
+        delay_samples=float(prior.delay if delay_samples is None else delay_samples),
         residuals=np.asarray(solved.residuals),
     )
     return calib if batched else calib[0]
@@ -161,7 +163,7 @@ def fit(
     names: tuple[str, ...] = ESTIMATED,
     options: FitOptions = FitOptions(),
     measured_speed: bool = True,
-    delay_samples: int = 0,
+    delay_samples: float | None = None,
 ) -> Calibration:
     """Calibrate a motor from bench data.
 
@@ -176,8 +178,12 @@ def fit(
         options: solver settings.
         measured_speed: where free segments carry a measured ``w_m``, use it as
             an input so J and B play no part (see ``BenchData.experiment``).
-        delay_samples: the inverter's PWM/computation delay (samples).
+        delay_samples: the inverter's nominal PWM/computation delay (samples);
+            default ``prior.delay``. Estimated when ``"delay"`` is in ``names``.
     """
+    if delay_samples is not None:
+        prior = prior.replace(delay=float(delay_samples))
+    delay_samples = float(prior.delay)
     return fit_currents(
         bench.experiment(measured_speed=measured_speed, delay_samples=delay_samples),
         bench.currents,

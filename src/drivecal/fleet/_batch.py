@@ -38,6 +38,9 @@ from ..data import FORMATS, BenchData, benches_from_frames, read_table, stacked_
 from ..errors import DrivecalError
 from ..fitting import fit_currents
 from ..identify import check_requested
+from ..diagnose import EFFECTS
+from ..physics import ESTIMABLE
+from ..selection import select_effects
 from ..model import model_experiment
 from ..data import MotorFile
 from ..results import Status, content_sha256, result_message
@@ -185,8 +188,12 @@ def _failed_row(item: _Loaded, status: Status, reason: str) -> dict[str, Any]:
             "reason": reason, "converged": False}
 
 
-def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool, chunk: int) -> pd.DataFrame:
+def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool, chunk: int,
+               effects: str | tuple[str, ...] = "auto") -> pd.DataFrame:
     prior, names = motor_file.motor, motor_file.names
+    if isinstance(effects, tuple):  # a list of effects: fitted for every motor, as `drivecal fit` fits them
+        wanted = set(names) | {n for e in effects for n in EFFECTS[e][0] if n != "i_dead"}
+        names = tuple(n for n in ESTIMABLE if n in wanted)
     delay = motor_file.delay_samples
     size = _bucket(len(items), chunk)
     pad = [0] * (size - len(items))  # padding repeats the first motor; its rows are dropped
@@ -224,7 +231,45 @@ def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool
         columns[f"{name}_identifiable"] = np.full(n, bool(cal.identifiable[i]))
     columns["resid_min_p"] = diag["resid_min_p"][:n]
     columns["mismatch"] = diag["mismatch"][:n]
+    columns["effects"] = [""] * n
+    if effects == "auto":
+        for i in np.flatnonzero(np.asarray(columns["mismatch"]) & converged):
+            _select_for(columns, int(i), items[i], motor_file, measured_speed, effects)
     return pd.DataFrame(columns)
+
+
+def _select_for(columns: dict[str, Any], i: int, item: _Loaded, motor_file: MotorFile, measured_speed: bool,
+                effects: str | tuple[str, ...]) -> None:
+    """Row ``i`` of ``columns`` (a motor whose residuals are not white) fitted again with its bench effects.
+
+    The batch fits every motor without bench effects; only a motor the
+    whiteness check flags pays for the effect selection (``selection.select_effects``:
+    score tests, and a refit per effect they support), so a fleet of motors
+    that need none keeps the batch's speed. Where effects are fitted the
+    row takes the new fit (its effect parameters in columns of their own),
+    names them in ``effects`` and is judged again on its new residuals.
+    """
+    bench = item.bench
+    experiment = bench.experiment(measured_speed, delay_samples=motor_file.delay_samples)
+    sel = select_effects(experiment, bench.currents, motor_file.motor, names=motor_file.names, effects=effects,
+                         source=item.path)
+    cal = sel.calibration
+    if not sel.included or not bool(cal.converged):
+        return
+    n = len(columns["serial"])
+    for j, name in enumerate(cal.names):
+        for suffix, value in (("", cal.estimate[j]), ("_se", cal.se[j]), ("_ci_low", cal.ci95[j, 0]),
+                              ("_ci_high", cal.ci95[j, 1])):
+            column = columns.setdefault(name + suffix, np.full(n, np.nan))
+            column[i] = value
+        flags = columns.setdefault(f"{name}_identifiable", np.full(n, False))
+        flags[i] = bool(cal.identifiable[j])
+    diag = residual_diagnostics(np.asarray(cal.residuals)[None], np.asarray(experiment.segment_start))
+    columns["sigma_hat"][i] = float(cal.sigma_hat)
+    columns["iterations"][i] = int(cal.iterations)
+    columns["resid_min_p"][i] = diag["resid_min_p"][0]
+    columns["mismatch"][i] = diag["mismatch"][0]
+    columns["effects"][i] = ",".join(sel.included)
 
 
 def calibrate_files(
@@ -233,8 +278,12 @@ def calibrate_files(
     *,
     chunk: int = 256,
     measured_speed: bool = True,
+    effects: str | tuple[str, ...] = "auto",
 ) -> pd.DataFrame:
     """Calibrate one chunk of bench files; one row per file, failures included, in the order of ``paths``.
+
+    ``effects``: as ``drivecal fit --effects``; in a batch only the motors whose
+    residuals are not white go through the selection (see ``_select_for``).
 
     Runs wherever it is called: in this process, or on a dask worker (the
     compiled fit stays in that worker's memory for its next chunk).
@@ -261,7 +310,7 @@ def calibrate_files(
         for start in range(0, len(items), chunk):
             part = items[start : start + chunk]
             try:
-                fitted.append(_fit_group(part, motor_file, measured_speed, chunk))
+                fitted.append(_fit_group(part, motor_file, measured_speed, chunk, effects))
             except DrivecalError as exc:
                 failed += [_failed_row(it, Status.INVALID, str(exc)) for it in part]
     frames = ([pd.DataFrame(failed)] if failed else []) + fitted
@@ -283,7 +332,7 @@ def motor_sha256(motor_file: MotorFile) -> str:
     """
     content = {"motor": {k: float(v) for k, v in motor_file.motor.all_values().items()},
                "estimate": None if motor_file.estimate is None else list(motor_file.estimate),
-               "delay_samples": int(motor_file.delay_samples)}
+               "delay_samples": _whole_or_float(motor_file.delay_samples)}
     return content_sha256(json.dumps(content, sort_keys=True).encode())
 
 # --------------------------------------------------------------------------- the run
@@ -404,6 +453,7 @@ def run_batch(
     measured_speed: bool = True,
     outlier_z: float = DEFAULT_OUTLIER_Z,
     progress: Callable[[int, int], None] = lambda done, total: None,
+    effects: str | tuple[str, ...] = "auto",
 ) -> BatchSummary:
     """Calibrate every bench file of ``inputs`` into the Parquet table ``out``.
 
@@ -422,6 +472,7 @@ def run_batch(
         measured_speed: use a measured ``w_m`` as input (see ``BenchData.experiment``).
         outlier_z: robust z-score threshold of the fleet check (recorded in the table's ``outlier_z``).
         progress: called as ``progress(done, total)`` after each chunk.
+        effects: bench effects, as ``drivecal fit --effects`` (see :func:`calibrate_files`).
     """
     import time
 
@@ -459,7 +510,8 @@ def run_batch(
     progress(len(done_files & set(files)), len(files))
     finished = len(done_files & set(files))
     fresh = []
-    calibrate = functools.partial(calibrate_files, motor_file=motor_file, chunk=chunk, measured_speed=measured_speed)
+    calibrate = functools.partial(calibrate_files, motor_file=motor_file, chunk=chunk, measured_speed=measured_speed,
+                                  effects=effects)
     for k, table in run_chunks(chunks, calibrate, workers, scheduler):
         save(k, table)
         fresh.append(table)
@@ -487,3 +539,8 @@ def run_batch(
                                  .astype(bool), "serial"].astype(str)),
         seconds=time.perf_counter() - t0,
     )
+
+
+def _whole_or_float(value: float) -> int | float:
+    """A whole number as int (the hash of a motor file with a whole delay is that of 0.2's), else the float."""
+    return int(value) if float(value).is_integer() else float(value)

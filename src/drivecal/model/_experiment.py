@@ -58,6 +58,15 @@ class Experiment(eqx.Module):
         segments: the segment layout (static): ``(start, stop, kind)`` per
             segment, samples ``start:stop``, ``kind`` one of :data:`SEGMENT_KINDS`;
             None when unknown (the rollout is then one scan over all samples).
+        base_delay: the whole samples of inverter delay already applied in
+            ``voltages`` (static): row k is the command of sample k - base_delay.
+        fractional_delay: the model applies the rest of the motor's ``delay``
+            (samples), ``delay - base_delay``, in the rollout (static): within
+            each sample period the applied voltage switches from one command
+            to the next at that fraction of the period, and both
+            sub-intervals are integrated (exact under the held input).
+            Switched on by :func:`model_experiment` when the delay is
+            estimated or not a whole number.
         linearised_tangents: derivatives of the segment-wise rollout from
             the steps linearised all at once (static; fastest for one motor),
             else by forward mode through the scans (fastest in ``vmap``-ped
@@ -79,6 +88,8 @@ class Experiment(eqx.Module):
     thermal: bool = eqx.field(static=True, default=False)
     dead_time_substeps: int = eqx.field(static=True, default=4)
     segments: tuple[tuple[int, int, str], ...] | None = eqx.field(static=True, default=None)
+    base_delay: int = eqx.field(static=True, default=0)
+    fractional_delay: bool = eqx.field(static=True, default=False)
     linearised_tangents: bool = eqx.field(static=True, default=True)
 
     @property
@@ -96,7 +107,7 @@ class Experiment(eqx.Module):
         speeds: list[np.ndarray | None] | None = None,
         temperatures: list[np.ndarray | float | None] | None = None,
         angles: list[np.ndarray | None] | None = None,
-        delay_samples: int = 0,
+        delay_samples: float = 0.0,
         host: bool = False,
     ) -> Experiment:
         """Lay segments end to end.
@@ -119,10 +130,13 @@ class Experiment(eqx.Module):
             delay_samples: PWM/computation delay: the inverter applies command
                 k at sample k + delay_samples. The first samples of a segment
                 then apply 0 V (from rest) or the first command (a segment
-                that starts moving).
+                that starts moving). Its whole samples are applied here
+                (``base_delay``); a fraction is the model's (``MotorParams.delay``
+                and ``fractional_delay``).
             host: keep the arrays in numpy (a fleet stacks thousands of
                 experiments: one transfer for the stack, not one per field and motor).
         """
+        base = _whole_samples(delay_samples)
         batch = np.shape(voltages[0])[:-2]  # leading axes: one experiment per dataset (see stack_experiments)
         applied, starts, lock, x0, speed, use, temp, theta, theta0 = [], [], [], [], [], [], [], [], []
         layout, at = [], 0
@@ -133,7 +147,7 @@ class Experiment(eqx.Module):
             at += n
             init = np.zeros(4) if initial_states is None else np.asarray(initial_states[s], dtype=float)
             init = np.broadcast_to(init, batch + (4,))
-            applied.append(delayed(v, delay_samples, at_rest=~np.any(init[..., :3] != 0.0, axis=-1)))
+            applied.append(delayed(v, base, at_rest=~np.any(init[..., :3] != 0.0, axis=-1)))
             t_s = None if temperatures is None else temperatures[s]
             temp.append(np.full(batch + (n,), np.nan) if t_s is None
                         else np.broadcast_to(np.asarray(t_s, dtype=float), batch + (n,)))
@@ -170,10 +184,11 @@ class Experiment(eqx.Module):
             theta_e_start=xp.asarray(np.concatenate(theta0, axis=-1)),
             thermal=temperatures is not None and any(t is not None for t in temperatures),
             segments=tuple(layout),
+            base_delay=base,
         )
 
     @classmethod
-    def from_plan(cls, plan: Plan, *, delay_samples: int = 0) -> Experiment:
+    def from_plan(cls, plan: Plan, *, delay_samples: float = 0.0) -> Experiment:
         """The experiment a plan commands, every segment starting from rest.
 
         Args:
@@ -189,20 +204,19 @@ class Experiment(eqx.Module):
             delay_samples=delay_samples,
         )
 
-    def with_extra_delay(self, samples: int) -> Experiment:
-        """The same run with the applied voltages ``samples`` more samples late, segment by segment."""
-        starts = np.flatnonzero(np.asarray(self.segment_start))
-        stops = np.append(starts[1:], self.num_samples)
-        volts = np.asarray(self.voltages)
-        x0 = np.asarray(self.initial_state)
-        later = [delayed(volts[a:b], samples, at_rest=not np.any(x0[a, :3])) for a, b in zip(starts, stops)]
-        return dataclasses.replace(self, voltages=jnp.asarray(np.concatenate(later, axis=0)))
-
     @property
     def has_angle(self) -> bool:
         """Some sample carries a measured rotor angle (a phase bench file)."""
         return bool(np.any(np.isfinite(np.asarray(self.theta_e))))
 
+
+
+def _whole_samples(delay_samples: float) -> int:
+    """The whole samples of a delay (samples) >= 0: ``floor(delay_samples)``."""
+    d = float(delay_samples)
+    if not np.isfinite(d) or d < 0:
+        raise ValueError(f"delay_samples must be a number of samples >= 0, got {delay_samples!r}")
+    return int(np.floor(d + 1e-9))
 
 
 def _speed_at_stages(w: np.ndarray) -> np.ndarray:
@@ -223,18 +237,25 @@ def _speed_at_stages(w: np.ndarray) -> np.ndarray:
 def model_experiment(experiment: Experiment, motor: MotorParams, names: tuple[str, ...]) -> Experiment:
     """``experiment`` with the bench effects the model needs switched on.
 
-    The dead-time term costs in every RK4 stage, and phase offsets need the
-    rotor angle written out, so each is compiled in only when its parameters
-    are estimated or set non-zero.
+    The dead-time term costs in every RK4 stage, phase offsets need the
+    rotor angle written out, and a fractional delay two integrations per
+    sample, so each is compiled in only when its parameters are estimated or
+    set non-zero (the delay: estimated, or not a whole number of samples; a
+    whole-sample delay is the experiment's ``base_delay``, see
+    :func:`with_experiment_delay`).
     """
     def used(name):
         return name in names or bool(np.any(np.asarray(getattr(motor, name)) != 0.0))
 
     dead_time = experiment.dead_time or used("v_dead")
     phase_offsets = experiment.phase_offsets or used("offset_a") or used("offset_b")
-    if (dead_time, phase_offsets) == (experiment.dead_time, experiment.phase_offsets):
+    delay = np.asarray(motor.delay)
+    fractional = experiment.fractional_delay or "delay" in names or bool(np.any(delay != np.floor(delay)))
+    if (dead_time, phase_offsets, fractional) == (experiment.dead_time, experiment.phase_offsets,
+                                                  experiment.fractional_delay):
         return experiment
-    return dataclasses.replace(experiment, dead_time=dead_time, phase_offsets=phase_offsets)
+    return dataclasses.replace(experiment, dead_time=dead_time, phase_offsets=phase_offsets,
+                               fractional_delay=fractional)
 
 
 def stack_experiments(experiments: list[Experiment]) -> Experiment:
@@ -244,7 +265,8 @@ def stack_experiments(experiments: list[Experiment]) -> Experiment:
     that each applied their own voltages (or measured their own speed) in one call.
     """
     # Static model switches must agree across the batch: switch on what any one needs.
-    flags = {f: any(getattr(e, f) for e in experiments) for f in ("dead_time", "phase_offsets", "thermal")}
+    flags = {f: any(getattr(e, f) for e in experiments)
+             for f in ("dead_time", "phase_offsets", "thermal", "fractional_delay")}
     # The segment layout is shared by the batch; where the datasets' layouts differ, none is used.
     layouts = {e.segments for e in experiments}
     flags["segments"] = layouts.pop() if len(layouts) == 1 else None
@@ -255,3 +277,18 @@ def stack_experiments(experiments: list[Experiment]) -> Experiment:
     arrays = {f.name: jnp.asarray(np.stack([np.asarray(getattr(e, f.name)) for e in experiments]))
               for f in fields if not f.metadata.get("static", False)}
     return Experiment(**arrays, **{**statics, **flags})
+
+
+def with_experiment_delay(motor: MotorParams, experiment: Experiment) -> MotorParams:
+    """``motor`` whose ``delay`` (samples) agrees with the whole samples ``experiment`` applies.
+
+    A whole-sample delay lives in the experiment (``base_delay``); a motor
+    made without one (``delay = 0``) for an experiment that applies one
+    would, once its delay is estimated, start from the wrong delay. A whole
+    ``motor.delay`` other than ``base_delay`` is therefore replaced by it; a
+    fractional one (a total delay the model applies) is kept.
+    """
+    delay = float(np.asarray(motor.delay).reshape(-1)[0]) if np.size(motor.delay) else 0.0
+    if delay == np.floor(delay) and delay != experiment.base_delay:
+        return motor.replace(delay=float(experiment.base_delay))
+    return motor

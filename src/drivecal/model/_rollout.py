@@ -31,35 +31,9 @@ from jax.custom_derivatives import SymbolicZero
 
 from ._experiment import Experiment
 from ._lowered_cache import call as cached_call
+from ._steps import _held, _quadratic, _rk4, _with_delay
 from ..physics import DqCoefficients, MotorParams, dead_time_error, dq_coefficients, dq_derivatives_from
 from ..physics import resistance_at, sensor_offsets, with_dq_offsets
-
-
-def _quadratic(speed: Any, u: float) -> Any:
-    """Speed at fraction ``u`` of the sample period from ``(w_k, w_k+1/2, w_k+1)`` (quadratic through the three)."""
-    if u == 0.0:
-        return speed[0]
-    if u == 0.5:
-        return speed[1]
-    if u == 1.0:
-        return speed[2]
-    return (2 * (u - 0.5) * (u - 1) * speed[0] - 4 * u * (u - 1) * speed[1] + 2 * u * (u - 0.5) * speed[2])
-
-
-def _rk4(f: Any, x: tuple, h: Any, stage_inputs: tuple) -> tuple:
-    """One classical Runge-Kutta step of length ``h`` for ``dx/dt = f(x, s)`` (x a tuple).
-
-    ``stage_inputs`` is ``(s(t), s(t + h/2), s(t + h))``: what ``f`` reads
-    besides the state at the four stages (the middle one twice).
-    """
-    def axpy(k, a):
-        return tuple(xi + a * ki for xi, ki in zip(x, k))
-
-    k1 = f(x, stage_inputs[0])
-    k2 = f(axpy(k1, 0.5 * h), stage_inputs[1])
-    k3 = f(axpy(k2, 0.5 * h), stage_inputs[1])
-    k4 = f(axpy(k3, h), stage_inputs[2])
-    return tuple(xi + (h / 6.0) * (a + 2.0 * b + 2.0 * c + d) for xi, a, b, c, d in zip(x, k1, k2, k3, k4))
 
 
 def rk4_step(
@@ -126,7 +100,8 @@ def _rollout(motor: MotorParams, experiment: Experiment, keep: int) -> jnp.ndarr
 
 def _segment_states(motor: MotorParams, experiment: Experiment, keep: int) -> list[tuple]:
     """Per segment of ``experiment.segments``, its first ``keep`` state components, arrays of shape (N_s,)."""
-    return [(_free_segment if kind == "free" else _linear_segment)(motor, experiment, start, stop, keep)
+    experiment, before = _with_delay(motor, experiment)
+    return [(_free_segment if kind == "free" else _linear_segment)(motor, experiment, start, stop, keep, before)
             for start, stop, kind in experiment.segments]
 
 
@@ -144,7 +119,8 @@ def _split_coefficients(c: DqCoefficients, thermal: bool) -> tuple[DqCoefficient
     return c._replace(r_ld=0.0, r_lq=0.0), (c.r_ld, c.r_lq)
 
 
-def _linear_segment(motor: MotorParams, experiment: Experiment, start: int, stop: int, keep: int) -> tuple:
+def _linear_segment(motor: MotorParams, experiment: Experiment, start: int, stop: int, keep: int,
+                    before: Any = None) -> tuple:
     """States over a segment of known speed (locked rotor, or measured speed): ``keep`` arrays of shape (N,).
 
     Only the currents are integrated: the speed at the RK4 stages is an
@@ -161,16 +137,27 @@ def _linear_segment(motor: MotorParams, experiment: Experiment, start: int, stop
                                                      + 2.0 * (free * stages[1][:-1]) + free * stages[2][:-1])
     theta = jnp.concatenate([x0[3:4], x0[3] + jnp.cumsum(increments)])
     c, per_sample = _split_coefficients(_segment_coefficients(motor, experiment, start, stop), experiment.thermal)
-    inputs = (experiment.voltages[start:stop, 0], experiment.voltages[start:stop, 1]) + stages + per_sample
+    volts, params = _voltage_inputs(experiment, start, stop, before, c)
+    inputs = volts + stages + per_sample
     if experiment.linearised_tangents:
         scan = _scan_linearised_tangents
     elif _constant_linear_part(experiment, start, stop):
-        scan = _scan_affine_constant
+        scan = functools.partial(_scan_affine_constant, varying=len(volts))
     else:
         scan = _scan_states
-    i_d, i_q = scan(functools.partial(_linear_step, experiment.sample_period, experiment.thermal), c,
-                    (x0[0], x0[1]), inputs)
+    step = functools.partial(_linear_step, experiment.sample_period, experiment.thermal, before is not None)
+    i_d, i_q = scan(step, params, (x0[0], x0[1]), inputs)
     return (i_d, i_q, w, theta)[:keep]
+
+
+def _voltage_inputs(experiment: Experiment, start: int, stop: int, before: Any, c: DqCoefficients
+                    ) -> tuple[tuple, Any]:
+    """The voltage inputs of a segment's scan, ``(v_d, v_q[, v_d_before, v_q_before])`` (N,) each, and its
+    parameters: ``c``, or ``(c, fraction)`` with a fractional delay (see :func:`_held`)."""
+    volts = (experiment.voltages[start:stop, 0], experiment.voltages[start:stop, 1])
+    if before is None:
+        return volts, c
+    return volts + (before[0][start:stop, 0], before[0][start:stop, 1]), (c, before[1])
 
 
 def _constant_linear_part(experiment: Experiment, start: int, stop: int) -> bool:
@@ -183,21 +170,33 @@ def _constant_linear_part(experiment: Experiment, start: int, stop: int) -> bool
     return not experiment.thermal and (start, stop, "locked") in (experiment.segments or ())
 
 
-def _linear_step(dt: Any, thermal: bool, c: DqCoefficients, x: tuple, u: tuple) -> tuple:
-    """One RK4 step of the currents ``x = (i_d, i_q)`` with the speed at the stages given.
+def _linear_step(dt: Any, thermal: bool, fractional: bool, params: Any, x: tuple, u: tuple) -> tuple:
+    """One sample period of the currents ``x = (i_d, i_q)`` with the speed at the stages given (:func:`_held`).
 
-    ``u = (v_d, v_q, w_m(t), w_m(t + dt/2), w_m(t + dt)[, R/Ld, R/Lq])``.
+    ``u = (v_d, v_q[, v_d_before, v_q_before], w_m(t), w_m(t + dt/2), w_m(t + dt)[, R/Ld, R/Lq])``;
+    ``params`` as :func:`_voltage_inputs` gives them.
     """
+    c, before, u = _step_parts(params, u, fractional)
     if thermal:
         c = c._replace(r_ld=u[5], r_lq=u[6])
 
-    def f(i, w_stage):
-        return dq_derivatives_from(c, (i[0], i[1], w_stage), (u[0], u[1]), True)[:2]
+    def f_with(v):
+        return lambda i, w_stage: dq_derivatives_from(c, (i[0], i[1], w_stage), v, True)[:2]
 
-    return _rk4(f, x, dt, (u[2], u[3], u[4]))
+    return _held(f_with, x, dt, (u[0], u[1]), before, (u[2], u[3], u[4]))
 
 
-def _free_segment(motor: MotorParams, experiment: Experiment, start: int, stop: int, keep: int) -> tuple:
+def _step_parts(params: Any, u: tuple, fractional: bool) -> tuple[DqCoefficients, Any, tuple]:
+    """``(coefficients, before, u)`` of a step: ``before = ((v_d, v_q) before, fraction)`` or None, and
+    ``u`` without the earlier voltages."""
+    if not fractional:
+        return params, None, u
+    c, fraction = params
+    return c, ((u[2], u[3]), fraction), u[:2] + u[4:]
+
+
+def _free_segment(motor: MotorParams, experiment: Experiment, start: int, stop: int, keep: int,
+                  before: Any = None) -> tuple:
     """States over a free segment with simulated speed (w_m * i products: nonlinear): ``keep`` arrays (N,).
 
     The rotor angle is integrated only when it is kept (nothing else reads it
@@ -205,22 +204,24 @@ def _free_segment(motor: MotorParams, experiment: Experiment, start: int, stop: 
     """
     dims = 4 if keep == 4 else 3
     c, per_sample = _split_coefficients(_segment_coefficients(motor, experiment, start, stop), experiment.thermal)
-    inputs = (experiment.voltages[start:stop, 0], experiment.voltages[start:stop, 1]) + per_sample
+    volts, params = _voltage_inputs(experiment, start, stop, before, c)
     x0 = tuple(experiment.initial_state[start, i] for i in range(dims))
     scan = _scan_linearised_tangents if experiment.linearised_tangents else _scan_states
-    states = scan(functools.partial(_free_step, experiment.sample_period, experiment.thermal), c, x0, inputs)
+    step = functools.partial(_free_step, experiment.sample_period, experiment.thermal, before is not None)
+    states = scan(step, params, x0, volts + per_sample)
     return tuple(states[:keep])
 
 
-def _free_step(dt: Any, thermal: bool, c: DqCoefficients, x: tuple, u: tuple) -> tuple:
-    """One RK4 step of ``x = (i_d, i_q, w_m[, theta_m])``; ``u = (v_d, v_q[, R/Ld, R/Lq])``."""
+def _free_step(dt: Any, thermal: bool, fractional: bool, params: Any, x: tuple, u: tuple) -> tuple:
+    """One sample period of ``x = (i_d, i_q, w_m[, theta_m])``; ``u = (v_d, v_q[, v_d_before, v_q_before][, R/Ld, R/Lq])``."""
+    c, before, u = _step_parts(params, u, fractional)
     if thermal:
         c = c._replace(r_ld=u[2], r_lq=u[3])
 
-    def f(state, _):
-        return dq_derivatives_from(c, state, (u[0], u[1]), False)[: len(x)]
+    def f_with(v):
+        return lambda state, _: dq_derivatives_from(c, state, v, False)[: len(x)]
 
-    return _rk4(f, x, dt, (None, None, None))
+    return _held(f_with, x, dt, (u[0], u[1]), before, (None, None, None))
 
 
 def _scan_states(step: Any, params: Any, x0: tuple, inputs: tuple) -> tuple:
@@ -372,9 +373,11 @@ def _rollout_sequential(motor: MotorParams, experiment: Experiment, keep: int) -
     """
     dt = experiment.sample_period
     coefficients = dq_coefficients(motor)
+    experiment, before = _with_delay(motor, experiment)
+    v_before, fraction = before if before is not None else (experiment.voltages, 0.0)
 
     def step(x, sample):
-        v_dq, locked, start, x0, speed, speed_input, temperature, theta_e_start = sample
+        v_dq, v_earlier, locked, start, x0, speed, speed_input, temperature, theta_e_start = sample
         x = tuple(jnp.where(start, x0[i], x[i]) for i in range(4))
         # R follows the winding temperature sample by sample (NaN: not recorded).
         warm = motor.replace(R=resistance_at(motor, temperature)) if experiment.thermal else motor
@@ -382,16 +385,24 @@ def _rollout_sequential(motor: MotorParams, experiment: Experiment, keep: int) -
         # The dead time's smooth sign turns within a fraction of a sample where a current crosses
         # zero; sub-steps keep RK4 within 1e-6 A of the engine there (3e-5 A with one step).
         substeps = experiment.dead_time_substeps if experiment.dead_time else 1
+        # With a fractional delay the earlier command acts for the first part of the period (see _held),
+        # each part with half the sub-steps: the same RK4 work per sample (and a program XLA:CPU runs well:
+        # 2 x 4 sub-steps with the dead time compiled in 54 s and then ran out of memory under forward mode).
+        pieces = ((v_dq, 0.0, 1.0),) if before is None else ((v_earlier, 0.0, fraction), (v_dq, fraction, 1.0))
+        if before is not None:
+            substeps = max(1, substeps // 2)
         x_next = x
-        for j in range(substeps):
-            a, b = j / substeps, (j + 1) / substeps
-            stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
-            x_next = rk4_step(x_next, v_dq, warm, locked, dt / substeps, stages, speed_input,
-                              theta_e_start=theta_e_start, dead_time=experiment.dead_time, coefficients=c)
+        for v, a0, b0 in pieces:
+            for j in range(substeps):
+                a, b = a0 + (b0 - a0) * j / substeps, a0 + (b0 - a0) * (j + 1) / substeps
+                stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
+                x_next = rk4_step(x_next, v, warm, locked, (b - a) * dt, stages, speed_input,
+                                  theta_e_start=theta_e_start, dead_time=experiment.dead_time, coefficients=c)
         return x_next, jnp.stack(x[:keep])
 
     inputs = (
         experiment.voltages,
+        v_before,
         experiment.locked,
         experiment.segment_start,
         experiment.initial_state,

@@ -31,14 +31,15 @@ FIXED: tuple[str, ...] = ("pole_pairs", "J", "B")
 #: Bench effects that stand between the motor and the measurement, each
 #: optional: estimated only when named (motor file ``estimate``), else held at
 #: the motor file's value (zero by default: an ideal inverter and sensors).
-NUISANCE: tuple[str, ...] = ("v_dead", "offset_d", "offset_q", "offset_a", "offset_b", "alpha_R")
+NUISANCE: tuple[str, ...] = ("delay", "v_dead", "i_dead", "offset_d", "offset_q", "offset_a", "offset_b", "alpha_R")
 #: Every parameter a fit may estimate, in drivecal's order.
 ESTIMABLE: tuple[str, ...] = ESTIMATED + NUISANCE
 #: Settings of the bench-effect models, never estimated.
-SETTINGS: tuple[str, ...] = ("T_load", "i_dead", "T_ref")
+SETTINGS: tuple[str, ...] = ("T_load", "T_ref")
 #: Parameters that may be zero or negative: searched additively around the
 #: prior in steps of this size (their unit), not as ``ln(theta/prior)``.
 ADDITIVE_SCALE: dict[str, float] = {
+    "delay": 0.1,
     "v_dead": 0.1,
     "offset_d": 0.01,
     "offset_q": 0.01,
@@ -55,6 +56,7 @@ UNITS: dict[str, str] = {
     "pole_pairs": "-",
     "J": "kg*m^2",
     "B": "N*m*s",
+    "delay": "samples",
     "v_dead": "V",
     "offset_d": "A",
     "offset_q": "A",
@@ -75,14 +77,15 @@ DESCRIPTIONS: dict[str, str] = {
     "pole_pairs": "pole pairs",
     "J": "rotor inertia",
     "B": "viscous friction",
-    "v_dead": "inverter dead-time voltage per phase",
+    "delay": "inverter command delay (computation + PWM)",
+    "v_dead": "inverter dead-time voltage per phase, device drop included",
     "offset_d": "d-axis current-sensor offset",
     "offset_q": "q-axis current-sensor offset",
     "offset_a": "phase-a current-sensor offset",
     "offset_b": "phase-b current-sensor offset",
     "alpha_R": "temperature coefficient of R",
     "T_load": "load torque",
-    "i_dead": "current scale of the dead-time sign",
+    "i_dead": "current width of the dead-time transition",
     "T_ref": "temperature at which R is stated",
 }
 
@@ -102,9 +105,14 @@ class MotorParams(eqx.Module):
         J: rotor inertia (kg*m^2).
         B: viscous friction (N*m*s).
         T_load: constant load torque (N*m); zero on an unloaded bench.
-        v_dead: inverter dead-time voltage (V) each phase loses against its
-            current's direction (see ``inverter.py``); 0 for an ideal inverter.
-        i_dead: current scale (A) of the smooth sign of the dead-time model.
+        delay: the inverter's command delay (samples, may be fractional):
+            the voltage commanded at sample k acts from ``(k + delay) * T_s``
+            (computation delay plus the PWM's effective update instant).
+        v_dead: inverter voltage error (V) each phase loses against its
+            current's direction: dead time plus the devices' forward drop
+            (see ``_inverter.py``); 0 for an ideal inverter.
+        i_dead: current width (A) of the dead-time error's transition through
+            zero current (the PWM ripple and the switches' capacitance).
         offset_d, offset_q: current-sensor offsets (A) seen on i_d and i_q.
         offset_a, offset_b: phase current-sensor offsets (A) of a phase (abc)
             bench file; they reach dq rotated by the rotor angle.
@@ -124,6 +132,7 @@ class MotorParams(eqx.Module):
     J: Any = 1.2e-3
     B: Any = 8.0e-5
     T_load: Any = 0.0
+    delay: Any = 0.0
     v_dead: Any = 0.0
     i_dead: Any = 0.05
     offset_d: Any = 0.0

@@ -66,6 +66,7 @@ def build_result(
     motor_file: str | os.PathLike | None = None,
     measured_speed: Any = NOT_RECORDED,
     saturation: Any = NOT_RECORDED,
+    effects: Any = NOT_RECORDED,
 ) -> dict[str, Any]:
     """The full result JSON of one fit (a plain, JSON-ready dict).
 
@@ -82,6 +83,7 @@ def build_result(
         motor_file: path of the motor TOML the prior came from.
         measured_speed: whether a measured speed drove the model (``drivecal fit`` records it).
         saturation: the saturation check's dict, or None (``drivecal fit`` records it).
+        effects: the bench-effect selection's dict (``EffectSelection.to_dict()``; ``drivecal fit`` records it).
     """
     segments = segment_traces(calibration, bench, experiment)
     stated = float(noise_sigma) if noise_sigma is not None else None
@@ -90,14 +92,14 @@ def build_result(
         used = bench.experiment(delay_samples=calibration.delay_samples) if experiment is None else experiment
         residuals["unmodelled_effects"] = unmodelled_effects(
             calibration.motor, calibration.fit_names, used, bench.currents, float(calibration.sigma_hat),
-            calibration.delay_samples, used.with_extra_delay(1),
             predicted=np.concatenate([np.stack([s["i_d_pred"], s["i_q_pred"]], axis=1) for s in segments]))
     fit = calibration.to_dict()
     if input_sha256 is None:
         input_sha256 = file_sha256(input_path) if input_path is not None else bench_sha256(bench)
     # The verdict reads the fit and its residuals; the document is assembled (keys and order) in one place.
-    judged = verdict({**fit, "segments": segments, "residuals": residuals})
+    judged = verdict({**fit, "segments": segments, "residuals": residuals,
+                      "effects": None if effects is NOT_RECORDED else effects})
     return result_document(fit, segments=segments, residuals=residuals, verdict=judged,
                            plan=plan_to_dict(plan) if plan is not None else None, motor_file=motor_file,
                            input_sha256=input_sha256, input_path=input_path, measured_speed=measured_speed,
-                           saturation=saturation)
+                           saturation=saturation, effects=effects)

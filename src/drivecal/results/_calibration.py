@@ -57,7 +57,9 @@ class Calibration:
         source: where the data came from.
         history: (K, n) accepted LM iterates of ``fit_names`` (SI), the start
             first and the estimate last; single fits only, else None.
-        delay_samples: the inverter delay (samples) the fit assumed.
+        delay_samples: the nominal inverter delay (samples) the fit started from (the prior's ``delay``;
+            the whole samples of it are applied in the experiment). Where ``delay`` is estimated its
+            estimate is among the parameters.
         residuals: (..., M, 2) model minus measured ``[i_d, i_q]`` (A) at the
             solver's last linearisation (the estimate is at most a final
             Gauss-Newton step of ``FitOptions.step_se`` SE from it), or None.
@@ -82,7 +84,7 @@ class Calibration:
     t_factor: float
     source: str = "synthetic bench"
     history: np.ndarray | None = None
-    delay_samples: int = 0
+    delay_samples: float = 0.0
     residuals: np.ndarray | None = None
 
     # --- batch handling --------------------------------------------------
@@ -248,7 +250,7 @@ class Calibration:
             t_factor=float(d.get("t_factor") or t_ppf(0.975, m - len(fit_names))),
             source=d.get("source", "synthetic bench"),
             history=None if hist is None else arr(hist["values"]),
-            delay_samples=int(d.get("delay_samples", 0)),
+            delay_samples=float(d.get("delay_samples", 0)),
         )
 
     def to_pandas(self):

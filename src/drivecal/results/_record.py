@@ -93,7 +93,7 @@ def segment_residuals(segments: list[dict[str, Any]]) -> list[tuple[str, np.ndar
 def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], residuals: dict[str, Any],
                     verdict: dict[str, Any], plan: dict[str, Any] | None, motor_file: str | os.PathLike | None,
                     input_sha256: str, input_path: str | os.PathLike | None, measured_speed: Any = NOT_RECORDED,
-                    saturation: Any = NOT_RECORDED) -> dict[str, Any]:
+                    saturation: Any = NOT_RECORDED, effects: Any = NOT_RECORDED) -> dict[str, Any]:
     """One fit's full result JSON from its parts (each already JSON-ready).
 
     Args:
@@ -107,6 +107,8 @@ def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], resi
         input_path: the input file, or None for the synthetic bench.
         measured_speed: whether a measured speed drove the model (bench files only).
         saturation: the saturation check's dict, or None (bench files only).
+        effects: the bench-effect selection (``drivecal.selection.EffectSelection.to_dict()``):
+            the mode, and per effect whether it was included, the evidence and the estimate.
     """
     doc = dict(fit)
     doc["segments"] = segments
@@ -125,6 +127,8 @@ def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], resi
         doc["drivecal_version"] = __version__
     if saturation is not NOT_RECORDED:
         doc["saturation"] = saturation
+    if effects is not NOT_RECORDED:
+        doc["effects"] = effects
     return doc
 
 
@@ -370,7 +374,9 @@ def validate_fit(d: Any, source: str = "result", prefix: str = "", *, sections: 
             width = len(c.lst(row, f"{prefix}history.values[{i}]")) if width is None else width
             c.nums(row, f"{prefix}history.values[{i}]", length=width)
     c.string(d.get("source", ""), f"{prefix}source")
-    c.integer(d.get("delay_samples", 0), f"{prefix}delay_samples", 0, 100_000)
+    delay = c.num(d.get("delay_samples", 0), f"{prefix}delay_samples", null=False, finite=True)
+    if not 0 <= delay <= 100_000:
+        c.fail(f"{prefix}delay_samples", f"is {delay:g}, outside 0 to 100000 samples")
     if sections:
         _validate_sections(c, d, prefix)
 
@@ -423,6 +429,13 @@ def _validate_sections(c: _Check, d: dict, prefix: str) -> None:
     c.string(d.get("motor_file"), f"{prefix}motor_file", null=True)
     for k in ("input", "versions", "saturation"):
         c.obj(d.get(k), f"{prefix}{k}", null=True)
+    chosen = c.obj(d.get("effects"), f"{prefix}effects", null=True) or {}
+    c.string(chosen.get("mode", "auto"), f"{prefix}effects.mode")
+    for i, e in enumerate(c.lst(chosen.get("effects"), f"{prefix}effects.effects", null=True) or []):
+        f = f"{prefix}effects.effects[{i}]"
+        c.obj(e, f)
+        c.string(e.get("effect"), f"{f}.effect")
+        c.boolean(e.get("included"), f"{f}.included")
     for n, t in (c.obj(d.get("truth"), f"{prefix}truth", null=True) or {}).items():
         c.num(c.obj(t, f"{prefix}truth.{_key(n)}").get("true"), f"{prefix}truth.{_key(n)}.true", null=False)
 

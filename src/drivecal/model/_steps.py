@@ -1,0 +1,106 @@
+"""One sample period of the dq equations under the held input, and what a fractional delay applies in it.
+
+Classical RK4 with one step per sample period (``_rk4``), the measured speed
+at its stages interpolated (``_quadratic``); with a fractional inverter delay
+the period is integrated in two sub-intervals, each under the command that
+acts in it (``_held``, ``delay_inputs``): exact under the held input, as the
+PWM applies it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from ._experiment import Experiment
+from ..physics import MotorParams
+
+
+def _quadratic(speed: Any, u: float) -> Any:
+    """Speed at fraction ``u`` of the sample period from ``(w_k, w_k+1/2, w_k+1)`` (quadratic through the three)."""
+    if isinstance(u, float) and u in (0.0, 0.5, 1.0):
+        return speed[int(2 * u)]
+    return (2 * (u - 0.5) * (u - 1) * speed[0] - 4 * u * (u - 1) * speed[1] + 2 * u * (u - 0.5) * speed[2])
+
+
+def _rk4(f: Any, x: tuple, h: Any, stage_inputs: tuple) -> tuple:
+    """One classical Runge-Kutta step of length ``h`` for ``dx/dt = f(x, s)`` (x a tuple).
+
+    ``stage_inputs`` is ``(s(t), s(t + h/2), s(t + h))``: what ``f`` reads
+    besides the state at the four stages (the middle one twice).
+    """
+    def axpy(k, a):
+        return tuple(xi + a * ki for xi, ki in zip(x, k))
+
+    k1 = f(x, stage_inputs[0])
+    k2 = f(axpy(k1, 0.5 * h), stage_inputs[1])
+    k3 = f(axpy(k2, 0.5 * h), stage_inputs[1])
+    k4 = f(axpy(k3, h), stage_inputs[2])
+    return tuple(xi + (h / 6.0) * (a + 2.0 * b + 2.0 * c + d) for xi, a, b, c, d in zip(x, k1, k2, k3, k4))
+
+
+def delay_inputs(motor: MotorParams, experiment: Experiment) -> tuple[Any, Any, Any]:
+    """What a fractional delay applies in each sample period: ``(v_after, v_before, fraction)``.
+
+    With the total delay ``motor.delay = base_delay + n + fraction`` (samples;
+    ``n`` whole, ``0 <= fraction < 1``), the period ``[t_k, t_k+1)`` applies
+    the command of sample ``k - base_delay - n - 1`` (``v_before``, (M, 2) V)
+    for its first ``fraction`` and that of ``k - base_delay - n``
+    (``v_after``) for the rest. Before a segment's first command acts the
+    inverter applies what ``physics.delayed`` applies (0 V from rest, else the
+    first command). ``n`` may be negative (an estimate of a delay near zero):
+    later commands, held at the segment's last. Traceable in ``motor.delay``;
+    its derivative is that of ``fraction`` (the sub-interval lengths).
+    """
+    extra = motor.delay - experiment.base_delay
+    whole = jnp.floor(extra)
+    fraction = extra - whole
+    v = experiment.voltages
+    k = jnp.arange(v.shape[0])
+    start = experiment.segment_start
+    first = jax.lax.cummax(jnp.where(start, k, 0))
+    last = jax.lax.cummin(jnp.where(jnp.concatenate([start[1:], jnp.ones(1, bool)]), k, v.shape[0] - 1),
+                          reverse=True)
+    at_rest = ~jnp.any(experiment.initial_state[:, :3] != 0.0, axis=-1)
+    pad = jnp.where(at_rest[:, None], 0.0, v[first])
+
+    def shifted(by):
+        idx = k - by
+        return jnp.where((idx < first)[:, None], pad, v[jnp.clip(idx, first, last)])
+
+    n = whole.astype(int)
+    return shifted(n), shifted(n + 1), fraction
+
+
+def _with_delay(motor: MotorParams, experiment: Experiment) -> tuple[Experiment, Any]:
+    """``experiment`` with ``v_after`` as its voltages, and ``(v_before, fraction)`` (:func:`delay_inputs`).
+
+    Unchanged, and None, without a fractional delay (static).
+    """
+    if not experiment.fractional_delay:
+        return experiment, None
+    v_after, v_before, fraction = delay_inputs(motor, experiment)
+    return dataclasses.replace(experiment, voltages=v_after), (v_before, fraction)
+
+
+def _held(f_with: Any, x: tuple, dt: Any, v_after: tuple, before: Any, speed: tuple) -> tuple:
+    """One sample period under the held input: RK4 of ``f_with(v)``, in two sub-intervals with a fractional delay.
+
+    ``before`` is None (``v_after`` acts over the whole period) or
+    ``(v_before, fraction)``: ``v_before`` acts for the first ``fraction`` of
+    the period, then ``v_after``; each sub-interval is one RK4 step, with
+    the speed at its stages interpolated from ``speed = (w(t), w(t + dt/2),
+    w(t + dt))`` (or ``(None,) * 3`` where the speed is a state).
+    """
+    if before is None:
+        return _rk4(f_with(v_after), x, dt, speed)
+    v_before, fraction = before
+
+    def stages(a, b):
+        return tuple(None if speed[0] is None else _quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
+
+    x = _rk4(f_with(v_before), x, fraction * dt, stages(0.0, fraction))
+    return _rk4(f_with(v_after), x, (1.0 - fraction) * dt, stages(fraction, 1.0))

@@ -1,0 +1,302 @@
+"""Which bench effects the data support: forward selection by nested likelihood-ratio tests.
+
+The procedure (``--effects auto``, the default of ``drivecal fit``):
+
+1. Fit the motor's parameters alone (the user's ``estimate``), the delay held
+   at its nominal value.
+2. Score-test every candidate effect not yet in the model
+   (``diagnose.unmodelled_effects``: delay, dead time, sensor offsets). If
+   none is significant at ``ALPHA`` (Bonferroni over the candidates), stop.
+3. Add the most significant one (the largest evidence first), starting its
+   parameters at their one-step estimates, and refit everything.
+4. Keep it if the likelihood-ratio statistic ``m ln(RSS_without / RSS_with)``
+   (chi-squared with as many degrees of freedom as parameters added, m the
+   number of current samples) is significant at the same level; else drop
+   it as a candidate. Go to 2.
+
+So an effect that only looked significant because a larger one was missing
+(dead time mimicking a delay, offsets mimicking dead time) is tested again
+after the larger one is modelled, and is neither fitted nor advised when it
+no longer shows. Effects not included are reported with their last score
+test and their one-step estimate (what the data say they would be, with a
+standard error), so the delay is reported with an interval either way.
+
+The same machinery serves any family of nested model extensions: a
+candidate is a name, the parameters it adds and the parameters whose
+sensitivity columns its score test probes (``diagnose.EFFECTS``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from .._stats import chi2_sf
+from ..diagnose import ALPHA, EFFECTS, unmodelled_effects
+from ..errors import DrivecalError
+from ..fitting import FitOptions, fit_currents
+from ..identify import assess_identifiability
+from ..model import Experiment
+from ..physics import ESTIMABLE, MotorParams
+from ..results import Calibration
+
+#: Values of ``--effects`` besides a list of effect names.
+MODES: tuple[str, ...] = ("auto", "none")
+
+#: A one-step delay estimate further than this (samples) from the fitted one is not a start: use the nominal.
+_DELAY_START_SPAN = 10.0
+
+
+def parse_effects(text: str, source: str = "--effects") -> str | tuple[str, ...]:
+    """``"auto"``, ``"none"`` or a tuple of effect names from a comma-separated list (e.g. ``delay,dead_time``).
+
+    Raises:
+        DrivecalError: naming ``source``, an unknown name and the choices.
+    """
+    words = tuple(w.strip().replace("-", "_").replace(" ", "_") for w in str(text).split(",") if w.strip())
+    if len(words) == 1 and words[0] in MODES:
+        return words[0]
+    unknown = [w for w in words if w not in EFFECTS]
+    if unknown or not words:
+        raise DrivecalError(f"{source}: unknown effect(s) {', '.join(unknown) or '(none given)'}; give auto, none, "
+                            f"or a comma-separated list of {', '.join(EFFECTS)}.")
+    return tuple(e for e in EFFECTS if e in words)
+
+
+@dataclasses.dataclass(frozen=True)
+class EffectChoice:
+    """What the selection decided about one bench effect.
+
+    Attributes:
+        effect: a key of ``diagnose.EFFECTS`` (``delay``, ``dead_time``, ``offsets``).
+        included: the final fit estimates it.
+        how: ``"selected"`` (by the tests), ``"requested"`` (named by the user),
+            ``"not supported"`` (its tests fell short), ``"not identifiable"``
+            (the plan cannot show it), ``"fixed"`` (the delay given with
+            ``--delay``) or ``"not tested"`` (``--effects none``).
+        test: the evidence: ``"likelihood ratio"``, ``"score"`` or ``""``.
+        statistic: the test's statistic (-), NaN when untested.
+        dof: its degrees of freedom.
+        p_value: its p-value, NaN when untested.
+        p_threshold: the level it was judged at.
+        estimate: per parameter ``(value, standard error)`` in its unit: the fit's
+            when included, else the one-step estimate from the final fit.
+        note: one sentence for the report.
+    """
+
+    effect: str
+    included: bool
+    how: str
+    test: str = ""
+    statistic: float = math.nan
+    dof: int = 0
+    p_value: float = math.nan
+    p_threshold: float = math.nan
+    estimate: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    note: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (NaN as null)."""
+        def num(x):
+            return None if x is None or not math.isfinite(x) else float(x)
+
+        return {"effect": self.effect, "included": self.included, "how": self.how, "test": self.test,
+                "statistic": num(self.statistic), "dof": self.dof, "p_value": num(self.p_value),
+                "p_threshold": num(self.p_threshold),
+                "estimate": {n: {"value": num(v), "se": num(s)} for n, (v, s) in self.estimate.items()},
+                "note": self.note}
+
+
+@dataclasses.dataclass(frozen=True)
+class EffectSelection:
+    """A fit with its bench effects chosen: the final calibration and the decision on each effect.
+
+    Attributes:
+        calibration: the final fit (its names include the included effects' parameters).
+        experiment: the experiment it used.
+        mode: ``"auto"``, ``"none"`` or ``"list"``.
+        choices: one :class:`EffectChoice` per effect of ``diagnose.EFFECTS``, in that order.
+        fits: how many fits the selection ran.
+    """
+
+    calibration: Calibration
+    experiment: Experiment
+    mode: str
+    choices: tuple[EffectChoice, ...]
+    fits: int = 1
+
+    @property
+    def included(self) -> tuple[str, ...]:
+        """The effects the final fit estimates."""
+        return tuple(c.effect for c in self.choices if c.included)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The result JSON's ``effects`` section."""
+        return {"mode": self.mode, "included": list(self.included), "alpha": ALPHA, "fits": self.fits,
+                "effects": [c.to_dict() for c in self.choices]}
+
+
+def _names_with(names: tuple[str, ...], extra: tuple[str, ...]) -> tuple[str, ...]:
+    wanted = set(names) | set(extra)
+    return tuple(n for n in ESTIMABLE if n in wanted)
+
+
+def _lr(before: Calibration, after: Calibration) -> float:
+    """``m ln(RSS_before / RSS_after)``: the likelihood-ratio statistic of nested Gaussian fits (-)."""
+    return float(before.num_residuals * math.log(float(before.rss) / float(after.rss)))
+
+
+def _fitted_estimate(cal: Calibration, params: tuple[str, ...]) -> dict[str, tuple[float, float]]:
+    return {n: (float(cal.estimate[cal.names.index(n)]), float(cal.se[cal.names.index(n)]))
+            for n in params if n in cal.fit_names}
+
+
+def _one_step(test: dict[str, Any]) -> dict[str, tuple[float, float]]:
+    return {n: (v["estimate"], v["se"]) for n, v in test["one_step"].items()}
+
+
+def _start(motor: MotorParams, test: dict[str, Any]) -> MotorParams:
+    """``motor`` with the tested effect's probed parameters at their one-step estimates (where sensible)."""
+    changes = {}
+    for n, v in test["one_step"].items():
+        value = v["estimate"]
+        if not math.isfinite(value):
+            continue
+        if n == "delay":
+            if abs(value - float(motor.delay)) > _DELAY_START_SPAN:
+                continue
+            value = max(value, 0.0)
+        if n == "v_dead":
+            value = abs(value)
+        changes[n] = value
+    return motor.replace(**changes)
+
+
+def select_effects(
+    experiment: Experiment,
+    currents: np.ndarray,
+    prior: MotorParams,
+    *,
+    names: tuple[str, ...],
+    effects: str | tuple[str, ...] = "auto",
+    options: FitOptions = FitOptions(),
+    source: str = "bench",
+    fixed_delay: bool = False,
+) -> EffectSelection:
+    """Fit ``names`` with the bench effects the data support (see the module docstring).
+
+    Args:
+        experiment: the experiment (the nominal delay ``prior.delay`` applied).
+        currents: measured ``[i_d, i_q]`` (A), shape (M, 2).
+        prior: the nominal motor; its ``delay`` is the nominal delay (samples).
+        names: the parameters the user asks for (an effect's parameters among
+            them make that effect requested).
+        effects: ``"auto"``, ``"none"``, or the effects to fit whatever the tests say.
+        options: solver settings.
+        source: label of the data.
+        fixed_delay: the delay is given (``--delay``): held at ``prior.delay``, never a candidate.
+    """
+    requested = tuple(e for e, (params, _, _) in EFFECTS.items() if set(params) & set(names))
+    if effects == "none" or isinstance(effects, tuple):
+        listed = () if effects == "none" else effects
+        fit_names = _names_with(names, tuple(n for e in listed for n in EFFECTS[e][0]))
+        cal = fit_currents(experiment, currents, prior, names=fit_names, options=options, source=source)
+        choices = []
+        for e, (params, _, _) in EFFECTS.items():
+            chosen = e in listed or e in requested
+            est = _fitted_estimate(cal, params)
+            choices.append(EffectChoice(e, chosen and bool(est), "requested" if chosen else "not tested",
+                                        estimate=est, note=_note(e, chosen, "requested" if chosen else "not tested")))
+        return EffectSelection(cal, experiment, "none" if effects == "none" else "list", tuple(choices))
+
+    cal = fit_currents(experiment, currents, prior, names=names, options=options, source=source)
+    fits = 1
+    candidates = [e for e in EFFECTS if e not in requested and not (fixed_delay and e == "delay")]
+    decided: dict[str, EffectChoice] = {}
+    last: dict[str, dict[str, Any]] = {}
+    while candidates and bool(cal.converged):
+        tests = unmodelled_effects(cal.motor, cal.fit_names, experiment, currents, float(cal.sigma_hat),
+                                   effects=tuple(candidates))
+        last.update({t["effect"]: t for t in tests})
+        best = tests[0]
+        if not best["suspected"]:
+            break
+        effect = best["effect"]
+        candidates.remove(effect)
+        start = _start(cal.motor, best)
+        trial = _names_with(cal.fit_names, EFFECTS[effect][0])
+        try:
+            # Judged at the fit so far with the effect at its one-step estimate: the dead time's width
+            # shows only where v_dead is not zero.
+            ident = assess_identifiability(experiment, start, names=trial)
+        except DrivecalError:
+            ident = None
+        probes = EFFECTS[effect][1]
+        if ident is None or not set(probes) <= set(ident.fit_names):
+            decided[effect] = EffectChoice(effect, False, "not identifiable", "score", best["statistic"],
+                                           best["dof"], best["p_value"], best["p_threshold"], _one_step(best),
+                                           _note(effect, False, "not identifiable", ident))
+            continue
+        trial = tuple(n for n in trial if n in ident.fit_names or n in cal.fit_names)
+        if trial != ident.names:
+            ident = assess_identifiability(experiment, start, names=trial)
+        # The prior stays the nominal motor (the search's centre and the value of what is not fitted).
+        refit = fit_currents(experiment, currents, prior, names=trial, initial=start, options=options,
+                             source=source, identifiability=ident)
+        fits += 1
+        added = len(refit.fit_names) - len(cal.fit_names)
+        statistic = _lr(cal, refit) if bool(refit.converged) and added > 0 else math.nan
+        p = float(chi2_sf(statistic, added)) if math.isfinite(statistic) else math.nan
+        threshold = best["p_threshold"]
+        if math.isfinite(p) and p < threshold:
+            decided[effect] = EffectChoice(effect, True, "selected", "likelihood ratio", statistic, added, p,
+                                           threshold, _fitted_estimate(refit, EFFECTS[effect][0]),
+                                           _note(effect, True, "selected"))
+            cal = refit
+            # Earlier decisions stand; what is left is tested again against the larger model.
+        else:
+            decided[effect] = EffectChoice(effect, False, "not supported", "likelihood ratio", statistic, added, p,
+                                           threshold, _one_step(best), _note(effect, False, "not supported"))
+    if candidates and bool(cal.converged):
+        # The final word on what was not added: the score tests against the final fit.
+        for t in unmodelled_effects(cal.motor, cal.fit_names, experiment, currents, float(cal.sigma_hat),
+                                    effects=tuple(candidates)):
+            last[t["effect"]] = t
+    choices = []
+    for e, (params, _, _) in EFFECTS.items():
+        if e in requested:
+            choices.append(EffectChoice(e, True, "requested", estimate=_fitted_estimate(cal, params),
+                                        note=_note(e, True, "requested")))
+        elif fixed_delay and e == "delay":
+            choices.append(EffectChoice(e, False, "fixed", estimate={"delay": (float(prior.delay), 0.0)},
+                                        note=f"delay fixed at {float(prior.delay):g} samples (--delay)"))
+        elif e in decided and decided[e].included:  # the final fit's estimates, not those when it was added
+            choices.append(dataclasses.replace(decided[e], estimate=_fitted_estimate(cal, params)))
+        elif e in decided and e not in last:
+            choices.append(decided[e])
+        elif e in last:
+            t = last[e]
+            how = decided[e].how if e in decided else "not supported"
+            choices.append(EffectChoice(e, False, how, "score", t["statistic"], t["dof"], t["p_value"],
+                                        t["p_threshold"], _one_step(t), _note(e, False, how)))
+        else:
+            choices.append(EffectChoice(e, False, "not tested", note=_note(e, False, "not tested")))
+    return EffectSelection(cal, experiment, "auto", tuple(choices), fits)
+
+
+def _note(effect: str, included: bool, how: str, ident: Any = None) -> str:
+    what = EFFECTS[effect][2]
+    if how == "requested":
+        return f"{what}: fitted as requested"
+    if how == "selected":
+        return f"{what}: fitted, the data support it (likelihood-ratio test)"
+    if how == "not identifiable":
+        reasons = "; ".join(f"{n}: {r}" for n, r in (getattr(ident, "reasons", None) or {}).items())
+        return f"{what}: suggested by the residuals, but this plan cannot estimate it" + (f" ({reasons})"
+                                                                                          if reasons else "")
+    if how == "not tested":
+        return f"{what}: not tested (--effects none)" if not included else what
+    return f"{what}: not supported by the data"
