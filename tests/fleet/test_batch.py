@@ -137,3 +137,24 @@ def test_resume_with_the_same_motor_file_goes_on(one_motor):
     _first_part(one_motor, MOTOR)
     summary = fleet.run_batch([one_motor / "in"], one_motor / "r.parquet", MOTOR, chunk=1, workers=1, resume=True)
     assert summary.done_before == 1 and summary.total == 2
+
+
+@pytest.mark.slow
+def test_a_flagged_motor_is_fitted_again_with_its_effects(tmp_path):
+    """In a batch, a motor whose residuals are not white goes through the effect selection (fleet/_effects.py)."""
+    import shutil
+    from pathlib import Path
+
+    import numpy as np
+
+    examples = Path(__file__).resolve().parents[2] / "examples"
+    shutil.copy(examples / "bench.csv", tmp_path / "ideal.csv")
+    shutil.copy(examples / "inverter_bench.csv", tmp_path / "inverter.csv")  # delay 1, dead time, offsets
+    table = fleet.calibrate_files([str(tmp_path / "ideal.csv"), str(tmp_path / "inverter.csv")],
+                                  dc.load_motor(None))
+    rows = {Path(f).stem: i for i, f in enumerate(table["file"])}
+    assert table["effects"][rows["ideal"]] == ""
+    assert set(table["effects"][rows["inverter"]].split(",")) == {"delay", "dead_time", "offsets"}
+    assert not table["mismatch"][rows["inverter"]]
+    assert abs(table["delay"][rows["inverter"]] - 1.0) < 3 * table["delay_se"][rows["inverter"]]
+    assert np.isnan(table["delay"][rows["ideal"]])

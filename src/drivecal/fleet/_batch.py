@@ -40,7 +40,7 @@ from ..fitting import fit_currents
 from ..identify import check_requested
 from ..diagnose import EFFECTS
 from ..physics import ESTIMABLE
-from ..selection import select_effects
+from ._effects import select_for
 from ..model import model_experiment
 from ..data import MotorFile
 from ..results import Status, content_sha256, result_message
@@ -234,42 +234,8 @@ def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool
     columns["effects"] = [""] * n
     if effects == "auto":
         for i in np.flatnonzero(np.asarray(columns["mismatch"]) & converged):
-            _select_for(columns, int(i), items[i], motor_file, measured_speed, effects)
+            select_for(columns, int(i), items[i].bench, items[i].path, motor_file, measured_speed, effects)
     return pd.DataFrame(columns)
-
-
-def _select_for(columns: dict[str, Any], i: int, item: _Loaded, motor_file: MotorFile, measured_speed: bool,
-                effects: str | tuple[str, ...]) -> None:
-    """Row ``i`` of ``columns`` (a motor whose residuals are not white) fitted again with its bench effects.
-
-    The batch fits every motor without bench effects; only a motor the
-    whiteness check flags pays for the effect selection (``selection.select_effects``:
-    score tests, and a refit per effect they support), so a fleet of motors
-    that need none keeps the batch's speed. Where effects are fitted the
-    row takes the new fit (its effect parameters in columns of their own),
-    names them in ``effects`` and is judged again on its new residuals.
-    """
-    bench = item.bench
-    experiment = bench.experiment(measured_speed, delay_samples=motor_file.delay_samples)
-    sel = select_effects(experiment, bench.currents, motor_file.motor, names=motor_file.names, effects=effects,
-                         source=item.path)
-    cal = sel.calibration
-    if not sel.included or not bool(cal.converged):
-        return
-    n = len(columns["serial"])
-    for j, name in enumerate(cal.names):
-        for suffix, value in (("", cal.estimate[j]), ("_se", cal.se[j]), ("_ci_low", cal.ci95[j, 0]),
-                              ("_ci_high", cal.ci95[j, 1])):
-            column = columns.setdefault(name + suffix, np.full(n, np.nan))
-            column[i] = value
-        flags = columns.setdefault(f"{name}_identifiable", np.full(n, False))
-        flags[i] = bool(cal.identifiable[j])
-    diag = residual_diagnostics(np.asarray(cal.residuals)[None], np.asarray(experiment.segment_start))
-    columns["sigma_hat"][i] = float(cal.sigma_hat)
-    columns["iterations"][i] = int(cal.iterations)
-    columns["resid_min_p"][i] = diag["resid_min_p"][0]
-    columns["mismatch"][i] = diag["mismatch"][0]
-    columns["effects"][i] = ",".join(sel.included)
 
 
 def calibrate_files(
