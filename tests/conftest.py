@@ -2,14 +2,22 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
-import pytest
+# Each pytest-xdist worker keeps its compiled kernels in a folder of its own (set before drivecal
+# starts JAX): the two workers then never load a kernel the other is writing. drivecal itself
+# guards that with JAX's file lock (drivecal/_setup.py); the suite does not rely on it alone.
+if os.environ.get("PYTEST_XDIST_WORKER") and "DRIVECAL_JAX_CACHE_DIR" not in os.environ:
+    _base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    os.environ["DRIVECAL_JAX_CACHE_DIR"] = str(Path(_base) / "drivecal" / f"jax-tests-{os.environ['PYTEST_XDIST_WORKER']}")
 
-import drivecal as dc
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+import drivecal as dc  # noqa: E402
 
 NOISE = 0.02  # A, the default sensor noise
 

@@ -32,15 +32,45 @@ def _enable_compilation_cache() -> None:
 
     On by default; ``DRIVECAL_JAX_CACHE=0`` turns it off. Kernels go to
     ``$XDG_CACHE_HOME/drivecal/jax`` (``~/.cache/drivecal/jax``), or to
-    ``DRIVECAL_JAX_CACHE_DIR``.
+    ``DRIVECAL_JAX_CACHE_DIR``, in a sub-folder per kind of processor.
     """
     if not cache_enabled():
         return
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    path = os.environ.get("DRIVECAL_JAX_CACHE_DIR") or str(Path(base) / "drivecal" / "jax")
-    jax.config.update("jax_compilation_cache_dir", path)
+    root = os.environ.get("DRIVECAL_JAX_CACHE_DIR") or str(Path(base) / "drivecal" / "jax")
+    # One folder per kind of processor: XLA:CPU compiles for the host's
+    # instruction set, and a kernel loaded on a machine without it (a home
+    # folder shared between machines) crashes the process.
+    jax.config.update("jax_compilation_cache_dir", str(Path(root) / _host_kind()))
     # drivecal's kernels compile in well under JAX's default 1 s threshold.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    # A size limit (least recently used kernels go) also turns on JAX's file
+    # lock: without it a process can read a kernel that another one (a second
+    # test worker, a fleet worker) is still writing, and crash on it.
+    jax.config.update("jax_compilation_cache_max_size", _CACHE_MAX_BYTES)
+
+
+#: Most the compiled kernels may take on disk (bytes); a default plan's fit needs ~50 MB.
+_CACHE_MAX_BYTES = 2 * 1024**3
+
+
+def _host_kind() -> str:
+    """A short name for this host's processor: its architecture and a hash of its instruction-set flags."""
+    import hashlib
+    import platform
+
+    text = platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            for line in f:
+                key = line.split(":", 1)[0].strip()
+                if key in ("flags", "Features", "model name", "isa"):
+                    text += "\n" + line.strip()
+                if key in ("flags", "Features") and line.strip():
+                    break
+    except OSError:
+        pass
+    return f"{platform.machine() or 'cpu'}-{hashlib.sha256(text.encode()).hexdigest()[:12]}"
 
 
 _enable_compilation_cache()
