@@ -73,3 +73,27 @@ def test_identifiability_report_is_jaxterity_s(truth):
         assert ours.singular_values == theirs.singular_values and ours.rank == theirs.rank
         assert ours.condition_number == theirs.condition_number and ours.identifiable == theirs.identifiable
         assert ours.weak_params == theirs.weak_params
+
+
+def test_dead_time_that_looks_like_r_is_named_with_the_segment_that_would_separate_it(truth):
+    """Issue 17: identifiability says when the plan cannot tell dead time from R, and what segment would."""
+    from drivecal.identify import assess_identifiability
+    from drivecal.model import Experiment
+
+    motor = truth.replace(v_dead=0.48, i_dead=0.05)
+    names = dc.ESTIMATED + ("v_dead",)
+    steps = dc.default_plan().segments[:2]  # locked d- and q-steps: every phase current keeps its sign
+    idf = assess_identifiability(Experiment.from_plan(dc.Plan(steps)), motor, names=names)
+    assert {"R", "v_dead"} <= set(idf.weak_params)
+    for name in ("R", "v_dead"):
+        assert "no phase current reverses within a segment" in idf.reasons[name], idf.reasons[name]
+        assert "free spin-up" in idf.reasons[name] and "changes sign" in idf.reasons[name]
+    # The segment it names separates them: a locked d-axis square wave (8 V, reversing every 2.5 ms).
+    square = np.where((np.arange(200) // 50) % 2 == 0, 8.0, -8.0)
+    reversing = dc.Plan((dc.Segment("locked d square wave", 0.010, locked=True, v_d=square, v_q=0.0), steps[1]))
+    idf = assess_identifiability(Experiment.from_plan(reversing), motor, names=names)
+    assert not {"R", "v_dead"} & set(idf.weak_params), idf.reasons
+    assert idf.predicted_ci95[names.index("v_dead")] < 0.05 * 0.48
+    # The default plan (its spin-up reverses every phase current) needs no advice.
+    idf = assess_identifiability(Experiment.from_plan(dc.default_plan()), motor, names=names)
+    assert idf.identifiable and not any("dead time" in r for r in idf.reasons.values())

@@ -27,8 +27,8 @@ import numpy as np
 from ..model import cached_call
 from .._stats import t_ppf
 from ..errors import DrivecalError
-from ..model import Experiment, model_experiment, predict_currents
-from ..physics import ADDITIVE_SCALE, ESTIMATED, MotorParams, search_scale
+from ..model import Experiment, model_experiment, predict_currents, simulate_states
+from ..physics import ADDITIVE_SCALE, ESTIMATED, MotorParams, dq_to_abc, search_scale
 
 #: A parameter whose relative sensitivity is below this fraction of the
 #: strongest one is dead: at double precision it is zero.
@@ -273,6 +273,63 @@ def _why_weak(name: str, experiment: Experiment, fit_names: tuple[str, ...], cov
     return f"{partner}, {what}"
 
 
+#: The dead-time parameters, and what tells them from R: current reversals and small currents.
+_DEAD_TIME = ("v_dead", "i_dead")
+
+
+def dead_time_advice(experiment: Experiment, motor: MotorParams) -> str:
+    """Why this plan cannot tell the dead time from R, and which segment would, in plain language.
+
+    The dead-time error ``-v_dead * sign(i_x)`` of a phase whose current keeps its sign is a
+    constant voltage, which a step answers like a change of R (and, in its transient, of L); what
+    shows it is a phase current that reverses within a segment (the error flips while R * i passes
+    through zero) and operation at currents comparable to ``i_dead`` (A), where the error ramps.
+    Counted on the nominal motor's predicted phase currents.
+    """
+    states = np.asarray(simulate_states(motor, experiment, keep=4))
+    theta_e = np.asarray(experiment.theta_e_start) + float(motor.pole_pairs) * states[:, 3]
+    phases = np.stack(dq_to_abc(states[:, 0], states[:, 1], theta_e, xp=np), axis=1)  # (M, 3)
+    width = max(float(motor.i_dead), 1e-6)
+    peak = float(np.max(np.abs(phases))) if phases.size else 0.0
+    clear = np.abs(phases) > max(3.0 * width, 0.05 * peak)  # a sign that is not ripple around zero
+    new_segment = np.asarray(experiment.segment_start, dtype=bool)
+    reversals = 0
+    for x in range(3):
+        sign = np.where(clear[:, x], np.sign(phases[:, x]), 0.0)
+        last = 0.0
+        for k, s in enumerate(sign):
+            if new_segment[k]:
+                last = 0.0
+            if s != 0.0:
+                reversals += int(last != 0.0 and s != last)
+                last = s
+    small = float(np.mean(np.abs(phases) < 3.0 * width)) if phases.size else 0.0
+    near = f"{100 * small:.2g} % of the phase-current samples are within 3 i_dead ({3 * width:.3g} A) of zero"
+    if not reversals:
+        return (f"dead time looks like R to this plan: no phase current reverses within a segment, and {near}; add "
+                "a free spin-up (every phase current reverses each electrical cycle) or a locked segment whose "
+                "voltage changes sign within it")
+    return (f"the phase currents reverse {reversals} time{'s' if reversals != 1 else ''} within a segment, but {near}, "
+            "too few to shape the dead time's transition; a slower reversal (a longer free spin-up, or a slow "
+            "voltage ramp through zero) would show it")
+
+
+def _advise_dead_time(reasons: dict[str, str], names: tuple[str, ...], weak: list[str], confounded: tuple[str, ...],
+                      fit_names: tuple[str, ...], cov: np.ndarray, experiment: Experiment, motor: MotorParams) -> None:
+    """Add :func:`dead_time_advice` to the reasons of the dead-time parameters and of R where they are not pinned down."""
+    unclear = [n for n in _DEAD_TIME if n in names and (n in weak or n in confounded)]
+    if "R" in weak and "R" in fit_names and "v_dead" in fit_names:
+        sd = np.sqrt(np.diag(cov))
+        i, j = fit_names.index("R"), fit_names.index("v_dead")
+        if abs(cov[i, j] / (sd[i] * sd[j])) > CORR_MAX:
+            unclear.append("R")
+    if not unclear:
+        return
+    advice = dead_time_advice(experiment, motor)
+    for n in unclear:
+        reasons[n] = f"{reasons[n]}; {advice}" if reasons.get(n) else advice
+
+
 def check_requested(names: tuple[str, ...], experiment: Experiment, source: str) -> None:
     """Refuse a run that cannot show a parameter the user asked for by name.
 
@@ -381,6 +438,7 @@ def assess_identifiability(
     for n in weak:
         reasons[n] = _why_weak(n, experiment, fit_names, cov_rel, t_factor * se[names.index(n)],
                                abs(theta[names.index(n)]))
+    _advise_dead_time(reasons, names, weak, confounded, fit_names, cov_rel, experiment, motor)
     return Identifiability(
         names=tuple(names),
         rank=int(report.rank),
