@@ -44,14 +44,10 @@ def _enable_compilation_cache() -> None:
     jax.config.update("jax_compilation_cache_dir", str(Path(root) / _host_kind()))
     # drivecal's kernels compile in well under JAX's default 1 s threshold.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    # A size limit (least recently used kernels go) also turns on JAX's file
-    # lock: without it a process can read a kernel that another one (a second
-    # test worker, a fleet worker) is still writing, and crash on it.
-    jax.config.update("jax_compilation_cache_max_size", _CACHE_MAX_BYTES)
-
-
-#: Most the compiled kernels may take on disk (bytes); a default plan's fit needs ~50 MB.
-_CACHE_MAX_BYTES = 2 * 1024**3
+    # No size limit: a limit turns on JAX's cross-process file lock around every
+    # read and write, on which parallel processes queue. A kernel read while
+    # another process still writes it is a truncated zlib stream, which JAX
+    # rejects and recompiles (tried: cut at 30-99 %), so the lock buys nothing.
 
 
 def _host_kind() -> str:
