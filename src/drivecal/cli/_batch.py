@@ -7,7 +7,8 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ._common import EXIT_COMPLETED_WITH_FAILURES, _check_out, _console, _load_motor, _motor_option, _Positive
+from ._common import (EXIT_COMPLETED_WITH_FAILURES, _check_out, _console, _format_option, _load_motor, _motor_option,
+                      _Positive)
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -33,14 +34,18 @@ if TYPE_CHECKING:
 @click.option("--effects", "effects", default="auto", show_default=True, metavar="auto|none|LIST",
               help="Bench effects (delay, dead_time, offsets) as in `drivecal fit`; in a batch only the motors "
                    "whose residuals are not white are fitted again with the effects the data support.")
+@_format_option
 @click.option("--json", "as_json", is_flag=True, help="Print the run summary as JSON on stdout; no progress bar.")
 def batch(inputs, out_path, motor_path, chunk, workers, scheduler, resume, measured_speed, outlier_z, effects,
-          as_json):
+          format_path, as_json):
     """Calibrate many motors: one bench file per motor, one results table.
 
     \b
     INPUT is bench files, directories (searched recursively) or glob patterns.
     The serial number is the file name, or the file's `serial` column.
+    One Parquet dataset (a file, or a directory of parts) may hold many
+    motors: its rows are split by `serial`, one motor per serial. Bench logs
+    (MDF4, TDMS, HDF5, CSV exports) are read through --format.
     Motors that share a plan shape are fitted together in one compiled call
     per chunk. Every file gets a row: a file that fails validation or a fit
     that does not converge is recorded with its reason and the run goes on.
@@ -81,7 +86,7 @@ def batch(inputs, out_path, motor_path, chunk, workers, scheduler, resume, measu
 
         summary = run_batch(inputs, out_path, motor_file, chunk=chunk, workers=workers,
                             scheduler=scheduler, resume=resume, measured_speed=measured_speed,
-                            outlier_z=outlier_z, progress=progress, effects=chosen)
+                            outlier_z=outlier_z, progress=progress, effects=chosen, format=format_path)
     if as_json:
         click.echo(json.dumps(summary.to_dict(), indent=2))
     else:

@@ -39,9 +39,11 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "demo": ("_demo", "demo", "Calibrate the default motor on the synthetic bench, then show a failed design."),
     "design": ("_design", "design",
                "Judge PLAN.toml before bench time: feasibility, identifiability, predicted intervals."),
-    "fit": ("_fit", "fit_command", "Calibrate R, Ld, Lq, lambda_m from a bench file (.csv, .parquet or .mat)."),
+    "fit": ("_fit", "fit_command", "Calibrate R, Ld, Lq, lambda_m from a bench file or log (CSV, Parquet, MAT, MDF4, TDMS, HDF5)."),
     "fleet-report": ("_fleet_report", "fleet_report",
                      "Summarise a `drivecal batch` table: counts, outliers, failures, histograms and trends."),
+    "inspect": ("_inspect", "inspect",
+                "List a bench log's channels and propose a format file: channel names, units, segment windows."),
     "gains": ("_gains", "gains", "Current-loop PI gains per axis from a saved calibration, with their uncertainty."),
     "plan": ("_plan", "plan_command", "Design a bench plan for the motor: feasible, identifiable, scaled to it."),
     "report": ("_report", "report",
@@ -119,6 +121,15 @@ _MOTOR_HELP = ("Motor file (TOML): nominal R, Ld, Lq, lambda_m (the prior) and f
 
 def _motor_option(f):
     return click.option("--motor", "motor_path", type=click.Path(dir_okay=False), default=None, help=_MOTOR_HELP)(f)
+
+
+_FORMAT_HELP = ("Bench format file (TOML): the log's channel names, units and segment windows (see `drivecal "
+                "inspect LOG`). Default: the file has drivecal's own columns in SI units.")
+
+
+def _format_option(f):
+    return click.option("--format", "format_path", type=click.Path(dir_okay=False), default=None,
+                        metavar="FORMAT.toml", help=_FORMAT_HELP)(f)
 
 
 #: Warnings of the running command, printed on stderr after it ends (see :func:`main`): a refused input

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import click
 
 from ..errors import DrivecalError
-from ._common import _check_out, _console, _fmt, _load_motor, _motor_option, _Positive
+from ._common import _check_out, _console, _fmt, _format_option, _load_motor, _motor_option, _Positive
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -62,15 +62,20 @@ def _fit_table(cal: Calibration) -> Table:
 @click.option("--out", "out_dir", type=click.Path(), default=None,
               help="Directory for report.json, report.html and the PNG figures (created if missing; its parent "
                    "must exist).")
+@_format_option
 @click.option("--json", "as_json", is_flag=True, help="Print the result JSON on stdout instead of the table.")
-def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_samples, effects, out_dir, as_json):
-    """Calibrate R, Ld, Lq, lambda_m from a bench file (.csv, .parquet or .mat).
+def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_samples, effects, out_dir, format_path,
+                as_json):
+    """Calibrate R, Ld, Lq, lambda_m from a bench file or log (CSV, Parquet, MAT, MDF4, TDMS, HDF5).
 
     \b
     The file holds one row per sample: segment, locked (0/1), t [s],
     v_d, v_q [V], i_d, i_q [A], optional w_m [rad/s] and temperature [degC];
     or phase columns i_a, i_b, (i_c), v_a, v_b, (v_c) with theta_e or
     theta_m [rad].
+    A bench log as the bench writes it (MDF4, TDMS, HDF5, a CSV export in
+    any dialect) is read through a format file (--format; `drivecal inspect
+    LOG` proposes one).
     The motor file's values are the starting point and the prior; a parameter
     the recording cannot identify is held there and reported as such. Bench
     effects (the inverter's delay, its dead time, sensor offsets) are found
@@ -109,7 +114,7 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
         names = tuple(n for n in names if n != "delay")
         chosen = chosen if not isinstance(chosen, tuple) else tuple(e for e in chosen if e != "delay")
     prior = motor_file.motor
-    bench = load_bench(bench_path, pole_pairs=float(prior.pole_pairs), nominal_R=float(prior.R))
+    bench = load_bench(bench_path, pole_pairs=float(prior.pole_pairs), nominal_R=float(prior.R), format=format_path)
     experiment = bench.experiment(measured_speed=measured_speed, delay_samples=motor_file.delay_samples)
     if motor_file.estimate is not None:
         check_requested(motor_file.names, experiment, bench_path)

@@ -1,11 +1,24 @@
-"""Bench data: the BenchData type, file readers, the checks every bench file passes, and motor files."""
+"""Bench data: the BenchData type, file readers, the checks every bench file passes, and motor files.
+
+Bench logs as a bench writes them (MDF4, TDMS, HDF5, any CSV dialect) are read through a format file
+(:func:`load_format`): channel names, units and segment windows onto drivecal's columns.
+"""
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
 from ._bench_data import BenchData, SegmentData, stacked_experiment
 from ._checks import AT_REST_NOISE_SAMPLES, DQ_COLUMNS, bench_from_frame, benches_from_frames, load_bench
+from ._format_file import MAPPABLE, BenchFormat, Window, format_from_dict, load_format
+from ._inspect import ChannelInfo, Inspection, guess_columns, inspect_log
+from ._log_units import COLUMN_QUANTITY, LOG_UNITS, SI_UNIT, canonical_unit
+from ._logs import LOG_FORMATS, LogChannel, is_log, read_log
+from ._mapping import check_mapped, log_channels, read_columns
 from ._motor_file import MotorFile, MotorSpec, load_motor, motor_from_dict
-from ._readers import FORMATS, TEXT_COLUMNS, columns_of, read_table
+from ._readers import FORMATS, TABLE_FORMATS, TEXT_COLUMNS, columns_of, csv_dialect, read_table
+from ._windows import Proposal, propose_windows
 
-__all__ = ["AT_REST_NOISE_SAMPLES", "BenchData", "DQ_COLUMNS", "FORMATS", "MotorFile", "MotorSpec", "SegmentData",
-           "TEXT_COLUMNS", "bench_from_frame", "benches_from_frames", "columns_of", "load_bench", "load_motor",
-           "motor_from_dict", "read_table", "stacked_experiment"]
+__all__ = ["AT_REST_NOISE_SAMPLES", "BenchData", "BenchFormat", "COLUMN_QUANTITY", "ChannelInfo", "DQ_COLUMNS",
+           "FORMATS", "Inspection", "LOG_FORMATS", "LOG_UNITS", "LogChannel", "MAPPABLE", "MotorFile", "MotorSpec",
+           "Proposal", "SI_UNIT", "SegmentData", "TABLE_FORMATS", "TEXT_COLUMNS", "Window", "bench_from_frame",
+           "benches_from_frames", "canonical_unit", "check_mapped", "columns_of", "csv_dialect", "format_from_dict",
+           "guess_columns", "inspect_log", "is_log", "load_bench", "load_format", "load_motor", "log_channels",
+           "motor_from_dict", "propose_windows", "read_columns", "read_log", "read_table", "stacked_experiment"]

@@ -26,7 +26,7 @@ from ..errors import DataError
 from ..model import Experiment
 from ..physics import dq_to_abc
 from .._io import atomic_path
-from ._readers import FORMATS
+from ._readers import TABLE_FORMATS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -172,8 +172,8 @@ class BenchData:
         """Write the bench file (format from the suffix: .csv, .parquet, .mat), atomically."""
         path = Path(path)
         suffix = path.suffix.lower()
-        if suffix not in FORMATS:
-            raise DataError(f"{path}: unknown bench-file format '{suffix}'; use one of {', '.join(FORMATS)}.")
+        if suffix not in TABLE_FORMATS:
+            raise DataError(f"{path}: unknown bench-file format '{suffix}'; use one of {', '.join(TABLE_FORMATS)}.")
         frame = self.to_frame()
         with atomic_path(path) as tmp:
             if suffix == ".csv":

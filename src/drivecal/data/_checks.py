@@ -25,8 +25,10 @@ import pandas as pd
 from ..errors import DataError
 from .._stats import fast_median
 from ._bench_data import BenchData, SegmentData
-from ._phase import phase_to_dq
-from ._readers import Columns, columns_of, read_table
+from ._phase import check_pole_pairs, phase_to_dq
+from ._format_file import BenchFormat, load_format
+from ._mapping import read_columns
+from ._readers import Columns, columns_of
 from ._values import check_numbers
 
 #: The dq columns of a bench file, with what each holds.
@@ -45,10 +47,19 @@ _NUMERIC = ("locked", "t", "v_d", "v_q", "i_d", "i_q", "w_m", "theta_e")
 AT_REST_NOISE_SAMPLES = 256
 
 
-def load_bench(path: str | Path, *, pole_pairs: float = 4.0, nominal_R: float | None = None) -> BenchData:
-    """Read and check a bench file (.csv, .parquet or .mat); see :func:`bench_from_frame`."""
+def load_bench(path: str | Path, *, pole_pairs: float = 4.0, nominal_R: float | None = None,
+               format: str | Path | BenchFormat | None = None) -> BenchData:
+    """Read and check a bench file or log; see :func:`bench_from_frame`.
+
+    Args:
+        path: a bench table (.csv in any dialect, .parquet, .mat) or a bench log (.mf4/.mdf, .tdms,
+            .h5/.hdf5).
+        format: a format file (TOML path, or a loaded :class:`BenchFormat`) mapping the log's channels,
+            units and segment windows onto drivecal's columns; None: the file has drivecal's columns.
+    """
     path = Path(path)
-    return bench_from_frame(read_table(path), str(path), pole_pairs=pole_pairs, nominal_R=nominal_R)
+    columns = read_columns(path, load_format(format))
+    return bench_from_frame(columns, str(path), pole_pairs=pole_pairs, nominal_R=nominal_R)
 
 
 def bench_from_frame(
@@ -76,7 +87,9 @@ def bench_from_frame(
     if next((v.shape[0] for v in frame.values()), 0) == 0:
         raise DataError(f"{source}: the file has no samples; record at least one segment.")
     if "i_d" not in frame and "i_a" in frame:
-        frame = phase_to_dq(frame, source, pole_pairs)
+        frame = phase_to_dq(frame, source, pole_pairs)  # checks the pole pairs on the phase columns
+    else:
+        check_pole_pairs(frame, source, pole_pairs)
     for col, meaning in DQ_COLUMNS.items():
         if col not in frame:
             hint = " (or phase columns i_a, i_b, v_a, v_b with theta_e)" if col in ("i_d", "i_q", "v_d", "v_q") else ""
@@ -132,6 +145,11 @@ def benches_from_frames(
         checked = _check([tables[i] for i in members], names, sizes, nominal_R, finite_known=False)
         for b, (i, ok) in enumerate(zip(members, checked.ok.tolist())):
             out[i] = checked.bench(b, sources[i]) if ok else checked.refusal(b, tables[i], sources[i])
+            if ok:
+                try:
+                    check_pole_pairs(tables[i], sources[i], pole_pairs)
+                except DataError as exc:
+                    out[i] = exc
     return out  # type: ignore[return-value]
 
 

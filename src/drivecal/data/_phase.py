@@ -18,6 +18,19 @@ Two checks belong to phase data alone, each refusing in one sentence with the fi
   figures only when the mismatch also follows ``v_c`` (correlation above 0.9):
   a common-mode (zero-sequence) voltage, as pole voltages against the DC link
   carry, is legitimate and removed by the Clarke transform.
+
+One check holds for any bench file with a turning rotor, phase or dq:
+
+- **Pole pairs.** Where a free segment shows both an electrical rotation (a
+  ``theta_e`` column, or else the phase voltages' own rotation) and a mechanical
+  one (a ``theta_m`` column, or else the integral of ``w_m``), their ratio is the
+  number of pole pairs. A motor file whose ``pole_pairs`` is more than
+  :data:`POLE_PAIR_TOLERANCE` away from it is refused, naming the measured ratio
+  (a wrong count, or a speed logged in another unit). The voltages' rotation
+  includes any turn of the commanded dq voltage's own angle (none for steps and
+  spin-ups at a constant command), so it is used only over at
+  least :data:`POLE_PAIR_MIN_TURNS` electrical revolutions; an angle column over
+  :data:`POLE_PAIR_MIN_ANGLE_TURNS`.
 """
 
 from __future__ import annotations
@@ -27,13 +40,24 @@ import math
 import numpy as np
 
 from ..errors import DataError
-from ..physics import abc_to_dq
+from ..physics import abc_to_dq, clarke
 from ._values import check_numbers
 
 #: The median mismatch of a third phase, as a multiple of its noise level and a fraction of the RMS,
 #: beyond which the third phase is refused.
 THIRD_PHASE_NOISE_FACTOR = 5.0
 THIRD_PHASE_RMS_FRACTION = 0.05
+#: Relative disagreement between the measured electrical-per-mechanical rotation and the motor file's
+#: pole_pairs beyond which the file is refused (a wrong count is off by 1/p or more: 25 % at 4 pole pairs).
+POLE_PAIR_TOLERANCE = 0.15
+#: Electrical revolutions over which the phase voltages' rotation is trusted as the electrical angle's
+#: (a commanded dq voltage that itself turns by half a revolution moves the ratio by 1/6 over three).
+#: Not the currents': their own dq angle turns with the speed in a spin-up (over the default plan's
+#: spin-up the phase currents turn 3.25 times as fast as a 4-pole-pair rotor).
+POLE_PAIR_MIN_TURNS = 3.0
+#: Electrical revolutions an angle column must show for the check (it is exact; only the speed's
+#: integral and noise blur it).
+POLE_PAIR_MIN_ANGLE_TURNS = 0.5
 
 
 def _noise(x: np.ndarray) -> float:
@@ -122,6 +146,8 @@ def phase_to_dq(frame: dict, source: str, pole_pairs: float) -> dict:
     with np.errstate(over="ignore", invalid="ignore"):
         for prefix in ("i", "v"):
             _check_third_phase(frame, prefix, source)
+    check_pole_pairs(frame, source, pole_pairs)
+    with np.errstate(over="ignore", invalid="ignore"):
         theta_e = frame["theta_e"].astype(float) if "theta_e" in frame else pole_pairs * frame["theta_m"].astype(float)
         out["theta_e"] = theta_e
         out["i_d"], out["i_q"] = _clarke_park(frame, "i", theta_e)
@@ -133,3 +159,52 @@ def phase_to_dq(frame: dict, source: str, pole_pairs: float) -> dict:
                             f"{max(float(np.max(np.abs(frame[c]))) for c in names.split('/')):.3g}); give "
                             f"{'currents in A' if prefix == 'i' else 'voltages in V'}.")
     return out
+
+
+def _as_float(x: np.ndarray | None) -> np.ndarray | None:
+    """A column of real numbers as float64, or None (absent, or not real numbers: the column checks name it)."""
+    x = None if x is None else np.asarray(x)
+    return None if x is None or x.dtype.kind not in "biuf" else x.astype(float)
+
+
+def check_pole_pairs(frame: dict, source: str, pole_pairs: float) -> None:
+    """Refuse ``pole_pairs`` where the free segments' own rotation says otherwise (see the module's docstring).
+
+    Args:
+        frame: the bench columns as read (phase or dq), SI units.
+        source: the file name, for the message.
+        pole_pairs: the motor file's pole pairs (-).
+    """
+    t, w_m, locked = _as_float(frame.get("t")), _as_float(frame.get("w_m")), _as_float(frame.get("locked"))
+    theta_e, theta_m = _as_float(frame.get("theta_e")), _as_float(frame.get("theta_m"))
+    phases = [_as_float(frame.get(c)) for c in ("v_a", "v_b", "v_c")]
+    from_voltages = theta_e is None and phases[0] is not None and phases[1] is not None
+    if locked is None or (theta_m is None and (w_m is None or t is None)) or (theta_e is None and not from_voltages):
+        return
+    steps = ~_segment_starts(frame)  # (N - 1,): steps within a segment
+    free = (locked[1:] == 0) & (locked[:-1] == 0) & steps
+    with np.errstate(invalid="ignore", over="ignore"):
+        if theta_e is not None:
+            electrical = np.diff(theta_e)
+        else:
+            alpha, beta = clarke(phases[0], phases[1], phases[2])
+            size = np.hypot(alpha, beta)
+            electrical = np.angle(np.exp(1j * np.diff(np.arctan2(beta, alpha))))
+            strong = size > 0.1 * np.nanmax(np.where(np.r_[free, False], size, 0.0), initial=0.0)
+            free = free & strong[1:] & strong[:-1]
+        if theta_e is not None:  # an angle column may wrap at 2 pi
+            electrical = np.angle(np.exp(1j * electrical))
+        mechanical = (np.angle(np.exp(1j * np.diff(theta_m))) if theta_m is not None
+                      else 0.5 * (w_m[1:] + w_m[:-1]) * np.diff(t))
+        e, m = float(np.sum(electrical[free])), float(np.sum(mechanical[free]))
+    turns = abs(e) / (2.0 * math.pi)
+    if not (math.isfinite(e) and math.isfinite(m)) or m == 0.0 or turns < (POLE_PAIR_MIN_TURNS if from_voltages else POLE_PAIR_MIN_ANGLE_TURNS):
+        return
+    ratio = e / m
+    if abs(ratio - pole_pairs) > POLE_PAIR_TOLERANCE * pole_pairs:
+        what = "phase voltages turn" if from_voltages else "electrical angle theta_e turns"
+        speed = "theta_m" if theta_m is not None else "w_m"
+        raise DataError(
+            f"{source}: in the free segments the {what} {ratio:.3g} times as fast as the rotor ({speed}), "
+            f"but the motor file says pole_pairs = {pole_pairs:g}; set pole_pairs = {max(round(ratio), 1)} in the "
+            f"motor file, or check that {speed} is mechanical and in {'rad' if speed == 'theta_m' else 'rad/s'}.")

@@ -1,4 +1,4 @@
-"""Reading bench files: CSV, Parquet and MATLAB ``.mat`` into columns of numpy arrays, unchecked.
+"""Reading bench files: CSV (any dialect), Parquet and MATLAB ``.mat`` into columns of numpy arrays, unchecked.
 
 The checks live in :mod:`._checks`; what is read here is a plain mapping of
 column name to a 1-D array per column (:data:`Columns`).
@@ -7,6 +7,7 @@ column name to a 1-D array per column (:data:`Columns`).
 from __future__ import annotations
 
 import io
+import re
 from pathlib import Path
 from typing import Any
 
@@ -17,8 +18,10 @@ import pyarrow as pa  # loaded by pandas already
 from ..errors import DataError
 from ._values import time_in_seconds
 
-#: File formats by suffix.
-FORMATS = (".csv", ".parquet", ".mat")
+#: Bench tables by suffix: the files drivecal reads and writes with its own columns.
+TABLE_FORMATS = (".csv", ".parquet", ".mat")
+#: Every file format read, by suffix: the tables and the bench logs (MDF4, TDMS, HDF5; see ``._logs``).
+FORMATS = TABLE_FORMATS + (".mf4", ".mdf", ".tdms", ".h5", ".hdf5")
 
 #: A bench table as read: column name -> one numpy array per column, all of one length (floats,
 #: integers, or objects for text). What every check works on: a DataFrame lookup costs ~0.1 ms,
@@ -57,15 +60,18 @@ def columns_of(frame: pd.DataFrame | Columns, source: str = "bench data") -> Col
     return out
 
 
-def read_table(path: Path, content: bytes | None = None) -> Columns:
+def read_table(path: Path, content: bytes | None = None, *, delimiter: str | None = None,
+               decimal: str | None = None) -> Columns:
     """The raw columns of a bench file (.csv, .parquet, .mat), unchecked.
 
     ``content``: the file's bytes when already read (a fleet hashes them too),
-    so the file is read once.
+    so the file is read once. ``delimiter``, ``decimal``: a CSV file's field separator and decimal
+    mark (None: detected, :func:`csv_dialect`).
     """
     suffix = path.suffix.lower()
-    if suffix not in FORMATS:
-        raise DataError(f"{path}: unknown bench-file format '{suffix}'; use one of {', '.join(FORMATS)}.")
+    if suffix not in TABLE_FORMATS:
+        raise DataError(f"{path}: unknown bench-file format '{suffix}'; use one of {', '.join(FORMATS)}"
+                        + (" (a bench log: give its format file, --format)." if suffix in FORMATS else "."))
     if content is None and not path.is_file():
         raise DataError(f"{path}: no such file; check the path.")
     try:
@@ -76,7 +82,11 @@ def read_table(path: Path, content: bytes | None = None) -> Columns:
             return {name: _arrow_to_numpy(column) for name, column in zip(table.column_names, table.columns)}
         source = path if content is None else io.BytesIO(content)
         if suffix == ".csv":
-            return columns_of(pd.read_csv(source))
+            if delimiter is None or decimal is None:
+                head = (content if content is not None else _head(path))[:8192]
+                found = csv_dialect(head)
+                delimiter, decimal = delimiter or found[0], decimal or found[1]
+            return columns_of(pd.read_csv(source, sep=delimiter, decimal=decimal))
         return _read_mat(path, source)
     except DataError:
         raise
@@ -84,6 +94,31 @@ def read_table(path: Path, content: bytes | None = None) -> Columns:
         said = " ".join(str(exc).split())[:200] or type(exc).__name__
         raise DataError(f"{path}: cannot be read as a {suffix[1:]} bench file ({said}); check that the file is "
                         f"complete and a {suffix[1:]} file (write it again).") from None
+
+
+def _head(path: Path) -> bytes:
+    with open(path, "rb") as f:
+        return f.read(8192)
+
+
+#: A decimal comma between digits (``1,25``), as a semicolon-separated export writes numbers.
+_DECIMAL_COMMA = re.compile(rb"(?:^|[;\t|])\s*[-+]?\d+,\d+(?:[eE][-+]?\d+)?\s*(?=[;\t|\r\n]|$)", re.M)
+
+
+def csv_dialect(head: bytes) -> tuple[str, str]:
+    """A CSV file's field separator and decimal mark, from its first bytes.
+
+    The header line decides the separator: ',' unless it has none and has ';', a tab or '|'
+    (in that order); with another separator than ',', numbers written as ``1,25`` mean a decimal
+    comma. A plain comma-separated file is read as before.
+    """
+    first = head.split(b"\n", 1)[0]
+    if b"," in first:
+        return ",", "."
+    delimiter = next((d for d in (";", "\t", "|") if d.encode() in first), ",")
+    if delimiter == ",":
+        return ",", "."
+    return delimiter, "," if _DECIMAL_COMMA.search(head) else "."
 
 
 #: Text columns of a bench file: read from Parquet as dictionaries (a few labels, not one Python

@@ -1,6 +1,7 @@
 """Fleet calibration: every motor off the line, one results table.
 
-One bench file per motor. A chunk's files are requested from the operating
+One bench file per motor, or one Parquet dataset of many split by serial
+(``_inputs``); logs are read through a format file. A chunk's files are requested from the operating
 system at once (``_prefetch``), then read and checked together
 (``data.benches_from_frames``), grouped by plan shape (segment lengths, rotor
 conditions, speed input) and fitted together: one ``jit(vmap(...))`` call per
@@ -10,7 +11,7 @@ two (padding repeats a real motor and is dropped), so a process compiles each
 shape once or twice and reuses it for the rest of the run. Chunks run in this
 process, in local helper processes, or on a dask cluster (``_runners``).
 
-Nothing is lost: every input file yields exactly one row, a file that fails
+Nothing is lost: every motor yields exactly one row, a file that fails
 validation or a fit that does not converge included, with its reason. Rows are
 written per chunk to ``<out>.parts/`` (each part atomically), so a killed run
 resumes where it stopped; the final table is assembled, checked against the
@@ -21,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import glob
 import json
 import math
 import os
@@ -34,7 +34,8 @@ import pandas as pd
 
 from .._io import atomic_path
 from .._stats import next_power_of_two
-from ..data import FORMATS, BenchData, benches_from_frames, read_table, stacked_experiment
+from ..data import BenchData, BenchFormat, benches_from_frames, is_log, load_format, read_columns, read_table
+from ..data import stacked_experiment
 from ..errors import DrivecalError
 from ..fitting import fit_currents
 from ..identify import check_requested
@@ -45,6 +46,7 @@ from ..model import model_experiment
 from ..data import MotorFile
 from ..results import Status, content_sha256, result_message
 from ._checks import DEFAULT_OUTLIER_Z, FLEET_COLUMNS, fleet_checks, residual_diagnostics
+from ._inputs import discover, motors_in, prefetch as _prefetch, serial_of
 from ._runners import run_chunks, tune_if_dask_worker
 
 # The fleet table's status words as constants: aliases of the ``Status`` labels, kept for one release
@@ -58,47 +60,6 @@ STATUS_INVALID = Status.INVALID.label
 # --------------------------------------------------------------------------- inputs
 
 
-def discover(inputs: Sequence[str | os.PathLike]) -> list[Path]:
-    """Bench files named by ``inputs``: files, directories (searched recursively) or glob patterns.
-
-    Returns the files sorted by path, each once.
-
-    Raises:
-        DrivecalError: an input that matches nothing.
-    """
-    found: set[Path] = set()
-    for item in inputs:
-        path = Path(item)
-        if path.is_dir():
-            matches = _bench_files_under(path)  # resolved already
-        elif path.is_file():
-            matches = [path.resolve()]
-        else:
-            matches = [Path(p).resolve() for p in glob.glob(str(item), recursive=True) if Path(p).is_file()]
-        if not matches:
-            raise DrivecalError(f"{item}: no bench files (.csv, .parquet, .mat) found there; "
-                                "check the path or pattern.")
-        found.update(matches)
-    return sorted(found)
-
-
-def _bench_files_under(directory: Path) -> list[Path]:
-    """Bench files anywhere below ``directory`` (not into linked directories), resolved.
-
-    One ``scandir`` per directory: a production line's folder holds tens of thousands of files,
-    and resolving each path on its own costs ~30 us.
-    """
-    found, pending = [], [directory.resolve()]
-    while pending:
-        with os.scandir(pending.pop()) as entries:
-            for entry in entries:
-                if entry.is_dir(follow_symlinks=False):
-                    pending.append(Path(entry.path))
-                elif os.path.splitext(entry.name)[1].lower() in FORMATS and entry.is_file():
-                    found.append(Path(entry.path).resolve() if entry.is_symlink() else Path(entry.path))
-    return found
-
-
 @dataclasses.dataclass(frozen=True)
 class _Loaded:
     path: str
@@ -108,11 +69,12 @@ class _Loaded:
     reason: str | None
 
 
-def _load(paths: Sequence[str], motor_file: MotorFile) -> list[_Loaded]:
-    """Read and check a chunk's bench files; one entry per path, in order, failures with their reason.
+def _load(paths: Sequence[str], motor_file: MotorFile, fmt: BenchFormat | None = None) -> list[_Loaded]:
+    """Read and check a chunk's bench files; one entry per motor (a file holding many motors, one per
+    serial: ``_inputs.motors_in``), in order, failures with their reason.
 
     All of them are asked for first (:func:`_prefetch`); files laid out alike are checked together
-    (``data.benches_from_frames``).
+    (``data.benches_from_frames``). ``fmt``: the bench format file of every input (None: drivecal's columns).
     """
     _prefetch(paths)
     read: list[tuple[str, str, str, Any]] = []  # path, serial, sha256, columns or the reason they are missing
@@ -121,10 +83,10 @@ def _load(paths: Sequence[str], motor_file: MotorFile) -> list[_Loaded]:
         try:
             content = Path(path).read_bytes()  # read once: hashed and parsed
             sha = content_sha256(content)
-            columns = read_table(Path(path), content)
-            if "serial" in columns and columns["serial"].size:
-                serial = str(columns["serial"][0])
-            read.append((path, serial, sha, columns))
+            plain = fmt is None and not is_log(Path(path))
+            columns = read_table(Path(path), content) if plain else read_columns(Path(path), fmt, content)
+            for label, motor in motors_in(columns):
+                read.append((path, label if label is not None else serial_of(path, motor), sha, motor))
         except (DrivecalError, OSError) as exc:
             read.append((path, serial, sha, str(exc)))
     readable = [r for r in read if not isinstance(r[3], str)]
@@ -137,31 +99,6 @@ def _load(paths: Sequence[str], motor_file: MotorFile) -> list[_Loaded]:
         bench = result if isinstance(result, BenchData) else None
         loaded.append(_Loaded(path, serial, sha, bench, None if bench is not None else str(result)))
     return loaded
-
-
-def _prefetch(paths: Sequence[str]) -> None:
-    """Ask the operating system to read ``paths`` into its page cache now, in the background.
-
-    A chunk's files are then read from memory one after the other instead of each waiting for the
-    disk: a file not yet cached took ~0.2 ms to read here, one asked for in advance ~0.05 ms (incl.
-    this call's ~0.02 ms), one already cached ~0.03 ms (+0.01 ms for this call). Where the system
-    has no ``posix_fadvise`` (macOS, Windows) nothing is done; a file that cannot be opened is left
-    to the read that reports it.
-    """
-    advise = getattr(os, "posix_fadvise", None)
-    if advise is None:
-        return
-    for path in paths:
-        try:
-            fd = os.open(path, os.O_RDONLY)
-        except OSError:
-            continue
-        try:
-            advise(fd, 0, 0, os.POSIX_FADV_WILLNEED)
-        except OSError:
-            pass
-        finally:
-            os.close(fd)
 
 
 def _shape_key(bench: BenchData, measured_speed: bool) -> tuple:
@@ -245,11 +182,14 @@ def calibrate_files(
     chunk: int = 256,
     measured_speed: bool = True,
     effects: str | tuple[str, ...] = "auto",
+    format: str | Path | BenchFormat | None = None,
 ) -> pd.DataFrame:
-    """Calibrate one chunk of bench files; one row per file, failures included, in the order of ``paths``.
+    """Calibrate one chunk of bench files; one row per motor (per file, or per serial of a file of many),
+    failures included, in the order of ``paths``.
 
     ``effects``: as ``drivecal fit --effects``; in a batch only the motors whose
-    residuals are not white go through the selection (see ``_select_for``).
+    residuals are not white go through the selection (see ``_select_for``). ``format``: the bench
+    format file of every file (see ``data.load_format``); a file holding many motors gives a row per motor.
 
     Runs wherever it is called: in this process, or on a dask worker (the
     compiled fit stays in that worker's memory for its next chunk).
@@ -257,7 +197,7 @@ def calibrate_files(
     from .._version import __version__
 
     tune_if_dask_worker()
-    loaded = _load([str(p) for p in paths], motor_file)
+    loaded = _load([str(p) for p in paths], motor_file, load_format(format))
     failed: list[dict] = []
     fitted: list[pd.DataFrame] = []
     groups: dict[tuple, list[_Loaded]] = {}
@@ -404,7 +344,8 @@ def _combine(tables: list[pd.DataFrame]) -> pd.DataFrame:
         return pd.DataFrame()
     done = pd.concat(tables, ignore_index=True)
     fleet_columns = [c for c in done.columns if c.startswith("z_") or c in FLEET_COLUMNS]
-    return done.drop(columns=fleet_columns).drop_duplicates("file", keep="last")
+    key = ["file", "serial"] if "serial" in done.columns else "file"  # a file of many motors: a row per serial
+    return done.drop(columns=fleet_columns).drop_duplicates(key, keep="last")
 
 
 def run_batch(
@@ -420,6 +361,7 @@ def run_batch(
     outlier_z: float = DEFAULT_OUTLIER_Z,
     progress: Callable[[int, int], None] = lambda done, total: None,
     effects: str | tuple[str, ...] = "auto",
+    format: str | Path | BenchFormat | None = None,
 ) -> BatchSummary:
     """Calibrate every bench file of ``inputs`` into the Parquet table ``out``.
 
@@ -439,6 +381,7 @@ def run_batch(
         outlier_z: robust z-score threshold of the fleet check (recorded in the table's ``outlier_z``).
         progress: called as ``progress(done, total)`` after each chunk.
         effects: bench effects, as ``drivecal fit --effects`` (see :func:`calibrate_files`).
+        format: a bench format file for every input (channel names, units, windows; ``data.load_format``).
     """
     import time
 
@@ -454,6 +397,7 @@ def run_batch(
             f"--out {out}: results of an earlier run exist; pass --resume to continue it, or remove "
             f"{out.name} (and {parts.name}/) to start again."
         )
+    fmt = load_format(format)  # refused before anything is written
     files = [str(p) for p in discover(inputs)]
     done = _read_done(out) if resume else pd.DataFrame()
     _check_same_run(done, out, motor_file)
@@ -477,7 +421,7 @@ def run_batch(
     finished = len(done_files & set(files))
     fresh = []
     calibrate = functools.partial(calibrate_files, motor_file=motor_file, chunk=chunk, measured_speed=measured_speed,
-                                  effects=effects)
+                                  effects=effects, format=fmt)
     for k, table in run_chunks(chunks, calibrate, workers, scheduler):
         save(k, table)
         fresh.append(table)
@@ -486,7 +430,8 @@ def run_batch(
 
     table = _combine([done] + fresh)  # the earlier runs' rows and this run's (as saved in the parts)
     order = {f: i for i, f in enumerate(files)}
-    table = table.assign(_order=table["file"].map(order).fillna(len(files))).sort_values(["_order", "file"])
+    table = table.assign(_order=table["file"].map(order).fillna(len(files))).sort_values(["_order", "file"],
+                                                                                          kind="stable")
     table = fleet_checks(table.drop(columns="_order").reset_index(drop=True), outlier_z)
     with atomic_path(out) as tmp:
         table.to_parquet(tmp, index=False)
