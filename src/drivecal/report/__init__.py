@@ -4,8 +4,11 @@ Figures are in :mod:`drivecal.report.plots` (it loads matplotlib; import it when
 """
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
-from ._gains import (AXES, MAX_BANDWIDTH_FRACTION, AxisGains, CurrentLoopDesign, Spread, design_current_loop,
-                     loop_metrics, open_loop, pi_gains)
+from ._firmware_loop import (MIN_PHASE_MARGIN, design_gains, loop_figures, loop_gain_for, loop_metrics, open_loop,
+                             pi_gains, reachable)
+from ._gains import AXES, MAX_BANDWIDTH_FRACTION, SPECS, AxisGains, CurrentLoopDesign, Spread, design_current_loop
+from ._firmware import SQRT3, FirmwareConstant, FirmwareGains, firmware_gains, to_fixed
+from ._firmware_header import c_header
 from ._html import CSS, FIG_DPI, figure_data_uri, fit_section_html, render_html, verdict_html, write_html_report
 from ._record import build_result, segment_traces
 # drivecal 0.1's flat `drivecal.report` module (atomic output, the plan as JSON) and `drivecal.record`'s readers,
@@ -14,7 +17,9 @@ from .._io import atomic_path, prepare_output_dir, save_figure, write_json
 from ..plan import plan_to_dict
 from ..results import load_result, result_fits, select_fit
 
-__all__ = ["AXES", "AxisGains", "CSS", "CurrentLoopDesign", "FIG_DPI", "MAX_BANDWIDTH_FRACTION", "Spread",
-           "atomic_path", "build_result", "design_current_loop", "figure_data_uri", "fit_section_html", "load_result",
-           "loop_metrics", "open_loop", "pi_gains", "plan_to_dict", "prepare_output_dir", "render_html", "result_fits",
-           "save_figure", "segment_traces", "select_fit", "verdict_html", "write_html_report", "write_json"]
+__all__ = ["AXES", "AxisGains", "CSS", "CurrentLoopDesign", "FIG_DPI", "FirmwareConstant", "FirmwareGains",
+           "MAX_BANDWIDTH_FRACTION", "MIN_PHASE_MARGIN", "SPECS", "SQRT3", "Spread", "atomic_path", "build_result",
+           "c_header", "design_current_loop", "design_gains", "figure_data_uri", "firmware_gains", "fit_section_html",
+           "load_result", "loop_figures", "loop_gain_for", "loop_metrics", "open_loop", "pi_gains", "plan_to_dict",
+           "prepare_output_dir", "reachable", "render_html", "result_fits", "save_figure", "segment_traces",
+           "select_fit", "to_fixed", "verdict_html", "write_html_report", "write_json"]

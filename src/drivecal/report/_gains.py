@@ -1,31 +1,48 @@
-"""Controller hand-off: current-loop PI gains from a calibration, with their uncertainty.
+"""Controller hand-off: current-loop PI gains from a calibration that meet a stated specification.
 
 Plant per axis (rotor at standstill, or with the speed-voltage coupling
-cancelled by feed-forward, as usual in field-oriented control):
+cancelled by feed-forward, see :mod:`drivecal.report._firmware`):
 ``G(s) = 1 / (L s + R)`` with ``L = Ld`` (d axis) or ``Lq`` (q axis).
 
-Gains by pole-zero cancellation, ``w_c = 2 pi f_bw``::
-
-    Kp = L * w_c   [V/A]        Ki = R * w_c   [V/(A*s)]
-
-The PI zero ``Ki/Kp = R/L`` cancels the plant pole, so on the calibrated
-motor the open loop is ``w_c/s`` and the closed loop ``w_c/(s + w_c)``:
--3 dB bandwidth exactly ``f_bw``, phase margin 90 deg.
-
-Discrete time (``sample_rate`` given, ``Ts = 1/fs``): the PI is
+Controller (``sample_rate`` given, ``Ts = 1/fs``): the PI
 ``u[k] = Kp e[k] + x[k]``, ``x[k+1] = x[k] + Ki Ts e[k]`` (forward-Euler
-integrator, ``C(z) = Kp + Ki Ts/(z - 1)``); the plant is the zero-order-hold
-discretisation ``G(z) = (1 - a) / (R (z - a))``, ``a = exp(-R Ts / L)``; and
-one sample of computation delay ``z^-1`` (the voltage computed at sample k is
-applied at k + 1). The loop is ``L(z) = C(z) G(z) / z``, evaluated on
-``z = exp(j w Ts)`` up to Nyquist.
+integrator, ``C(z) = Kp + Ki Ts/(z - 1)``), whose command acts ``d`` samples
+late (computation and PWM; ``d = 1`` by default, the calibration's fitted
+``delay`` where it has one). The plant seen at the sample instants is the
+exact discretisation of ``G`` under that held, delayed voltage: with
+``d = n + m`` (whole samples ``n``, fraction ``m``), ``a = exp(-R Ts/L)`` and
+``c = a^(1-m)``::
 
-Uncertainty: the gains are linear in (R, L), so the first-order (Jacobian)
-propagation ``J Cov J^T`` is exact and Monte Carlo (draws from
-``N(estimate, Cov)``) agrees up to its sampling error. The Monte Carlo draws
-matter for what is not linear: the closed loop of the *fixed* calibrated
-gains on a true motor anywhere in the confidence region, summarised by the
-mean and the 2.5 / 97.5 % quantiles of its -3 dB bandwidth and phase margin.
+    G(z) = z^-n (b0 + b1 z^-1) / (z - a),  b0 = (1 - c)/R,  b1 = (c - a)/R
+
+(``d = 1``: ``(1 - a) / (R z (z - a))``, zero-order hold plus one sample.)
+
+Gains by discrete pole-zero cancellation: the PI zero ``1 - Ki Ts/Kp`` is put
+on the plant pole ``a``, so ``Ki Ts = Kp (1 - a)`` and the loop is
+``L(z) = g H(z)``, ``H(z) = z^-n (b0' + b1' z^-1)/(z - 1)`` with
+``b0' + b1' = 1`` and ``g = Kp (1 - a)/R`` its one free gain::
+
+    Kp = g R / (1 - a)   [V/A]        Ki = g R / Ts   [V/(A*s)]
+
+``g`` meets the one specification asked for, on the sampled loop with its delay:
+
+- crossover ``f_c``: ``g = 1/|H(f_c)|``;
+- closed-loop -3 dB bandwidth ``f_b``: ``|g H/(1 + g H)|^2 = 1/2`` at ``f_b``,
+  ``g = (Re H + sqrt(Re H^2 + |H|^2)) / |H|^2``;
+- phase margin ``PM``: the crossover where ``180 deg + arg H = PM``
+  (``arg H`` falls monotonically from -90 deg), then ``g = 1/|H|`` there.
+
+A design is reachable when its phase margin is at least :data:`MIN_PHASE_MARGIN`
+(and its frequencies below Nyquist). Without a sample rate the loop is judged
+in continuous time without delay: ``H = 1/s``, ``Kp = L w_c``, ``Ki = R w_c``
+(``w_c = 2 pi f``; crossover and -3 dB bandwidth coincide, the margin is 90 deg).
+
+Uncertainty: the gains are smooth functions of (R, L, and the delay where it
+was fitted); first order ``J Cov J^T`` (``J`` by central differences) and Monte
+Carlo (each motor drawn from ``N(estimate, Cov)`` gets its own design) agree up
+to the map's curvature and the sampling error. The draws also serve as true
+motors under the *fixed* calibrated gains: the achieved crossover, -3 dB
+bandwidth and phase margin, as mean and 2.5 / 97.5 % quantiles.
 """
 
 from __future__ import annotations
@@ -38,99 +55,18 @@ import numpy as np
 
 from ..errors import DrivecalError
 from ..results import Calibration
+from ._firmware_loop import MIN_PHASE_MARGIN, design_gains, loop_figures, reachable
 
-#: Highest bandwidth accepted, as a fraction of the controller's sample rate:
-#: beyond ~fs/10 the sample-and-delay phase lag (1.5 samples) eats the margin.
+#: Kept for compatibility (drivecal 0.2 refused a bandwidth above this fraction of the sample rate);
+#: what is reachable is now computed from the loop: :data:`MIN_PHASE_MARGIN`.
 MAX_BANDWIDTH_FRACTION = 0.1
 #: Inductance of each axis.
 AXES = (("d", "Ld"), ("q", "Lq"))
+#: The kinds of specification, their option and unit.
+SPECS = {"bandwidth": ("--bandwidth", "Hz"), "crossover": ("--crossover", "Hz"),
+         "phase_margin": ("--phase-margin", "deg")}
 #: The parameters the gains are made of.
 _GAIN_PARAMS = ("R", "Ld", "Lq")
-
-
-def pi_gains(resistance: Any, inductance: Any, bandwidth_hz: float) -> tuple[Any, Any]:
-    """Pole-zero-cancelling PI gains ``(Kp [V/A], Ki [V/(A*s)])`` for ``bandwidth_hz`` (Hz)."""
-    w_c = 2.0 * math.pi * bandwidth_hz
-    return inductance * w_c, resistance * w_c
-
-
-def open_loop(kp, ki, resistance, inductance, freq_hz, sample_rate_hz: float | None = None):
-    """Open-loop frequency response ``C G`` (continuous) or ``C(z) G(z) z^-1`` (discrete), complex.
-
-    All arguments broadcast; ``freq_hz`` in Hz, gains in V/A and V/(A*s),
-    resistance (ohm), inductance (H).
-    """
-    w = 2.0 * np.pi * np.asarray(freq_hz)
-    if sample_rate_hz is None:
-        s = 1j * w
-        return (kp + ki / s) / (inductance * s + resistance)
-    ts = 1.0 / sample_rate_hz
-    z = np.exp(1j * w * ts)
-    a = np.exp(-resistance * ts / inductance)
-    return (kp + ki * ts / (z - 1.0)) * (1.0 - a) / (resistance * (z - a)) / z
-
-
-def _phase_deg(kp, ki, resistance, inductance, freq_hz, sample_rate_hz):
-    # Sum of the factors' angles: no wrap-around at -180 deg (np.angle of the product would wrap).
-    w = 2.0 * np.pi * np.asarray(freq_hz)
-    if sample_rate_hz is None:
-        s = 1j * w
-        return np.degrees(np.angle(kp + ki / s) - np.angle(inductance * s + resistance))
-    ts = 1.0 / sample_rate_hz
-    z = np.exp(1j * w * ts)
-    a = np.exp(-resistance * ts / inductance)
-    return np.degrees(np.angle(kp + ki * ts / (z - 1.0)) - np.angle(z - a) - w * ts)
-
-
-def _first_crossing(fun, f_lo: float, f_hi: float, shape: tuple[int, ...], n_grid: int = 600, iters: int = 60):
-    """First frequency (Hz) in ``[f_lo, f_hi]`` where ``fun(f) < 0``, per element; NaN where none.
-
-    ``fun`` maps frequencies of shape (S, F) to values of the same shape;
-    a log grid brackets the first sign change, bisection refines it.
-    """
-    grid = np.geomspace(f_lo, f_hi, n_grid)
-    below = fun(np.broadcast_to(grid, shape + (n_grid,))) < 0
-    found = below.any(axis=-1) & ~below[..., 0]
-    idx = np.clip(np.argmax(below, axis=-1), 1, n_grid - 1)
-    lo, hi = grid[idx - 1], grid[idx]
-    for _ in range(iters):
-        mid = np.sqrt(lo * hi)
-        neg = fun(mid[..., None])[..., 0] < 0
-        hi, lo = np.where(neg, mid, hi), np.where(neg, lo, mid)
-    return np.where(found, np.sqrt(lo * hi), np.nan)
-
-
-def loop_metrics(kp, ki, resistance, inductance, bandwidth_hz: float, sample_rate_hz: float | None = None):
-    """-3 dB closed-loop bandwidth (Hz) and phase margin (deg) of PI gains on motors (R, L).
-
-    Args:
-        kp, ki: the controller's gains (scalars).
-        resistance, inductance: the true motor's R (ohm) and L (H), shape (S,).
-        bandwidth_hz: the requested bandwidth: sets the search range.
-        sample_rate_hz: controller sample rate (Hz), or None for continuous time.
-
-    Returns:
-        ``(bandwidth_hz, phase_margin_deg)``, each shape (S,); NaN where the
-        closed loop never falls below -3 dB (or the loop gain never crosses 1)
-        before ``1000 f_bw`` or Nyquist.
-    """
-    r = np.atleast_1d(np.asarray(resistance, dtype=float))[:, None]
-    ind = np.atleast_1d(np.asarray(inductance, dtype=float))[:, None]
-    f_lo = bandwidth_hz * 1e-3
-    f_hi = bandwidth_hz * 1e3 if sample_rate_hz is None else 0.5 * sample_rate_hz * (1.0 - 1e-9)
-
-    def cl_gap(f):  # |T|^2 - 1/2 < 0 above the -3 dB point
-        lo = open_loop(kp, ki, r, ind, f, sample_rate_hz)
-        return np.abs(lo / (1.0 + lo)) ** 2 - 0.5
-
-    def ol_gap(f):  # |L| - 1 < 0 above the crossover
-        return np.abs(open_loop(kp, ki, r, ind, f, sample_rate_hz)) - 1.0
-
-    shape = r.shape[:1]
-    bw = _first_crossing(cl_gap, f_lo, f_hi, shape)
-    fc = _first_crossing(ol_gap, f_lo, f_hi, shape)
-    pm = 180.0 + _phase_deg(kp, ki, r[:, 0], ind[:, 0], np.nan_to_num(fc), sample_rate_hz)
-    return bw, np.where(np.isfinite(fc), pm, np.nan)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -153,6 +89,10 @@ class Spread:
         return {k: (v if math.isfinite(v) else None) for k, v in dataclasses.asdict(self).items()}
 
 
+def _num(x):
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
 @dataclasses.dataclass(frozen=True)
 class AxisGains:
     """PI gains of one current axis and what they achieve.
@@ -163,11 +103,13 @@ class AxisGains:
         inductance, resistance: the calibrated L (H) and R (ohm) the gains use.
         kp, ki: proportional (V/A) and integral (V/(A*s)) gains.
         ki_ts: discrete integrator increment ``Ki Ts`` (V/A), None in continuous time.
-        kp_se, ki_se: first-order standard deviations (V/A, V/(A*s)); NaN if not calibrated.
+        kp_se, ki_se: first-order standard deviations (V/A, V/(A*s)); NaN if a
+            parameter they depend on was not calibrated.
         kp_sd_mc, ki_sd_mc: Monte Carlo standard deviations, same units.
         calibrated: both R and L of this axis were identified by the fit.
         bandwidth: achieved -3 dB closed-loop bandwidth (Hz).
         phase_margin: achieved phase margin (deg).
+        crossover: achieved crossover (Hz).
     """
 
     axis: str
@@ -184,11 +126,9 @@ class AxisGains:
     calibrated: bool
     bandwidth: Spread
     phase_margin: Spread
+    crossover: Spread | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        def num(x):
-            return None if x is None or not math.isfinite(x) else float(x)
-
         return {
             "axis": self.axis,
             "inductance_name": self.inductance_name,
@@ -196,12 +136,13 @@ class AxisGains:
             "resistance": self.resistance,
             "kp": self.kp,
             "ki": self.ki,
-            "ki_ts": num(self.ki_ts),
-            "kp_se_first_order": num(self.kp_se),
-            "ki_se_first_order": num(self.ki_se),
-            "kp_sd_monte_carlo": num(self.kp_sd_mc),
-            "ki_sd_monte_carlo": num(self.ki_sd_mc),
+            "ki_ts": _num(self.ki_ts),
+            "kp_se_first_order": _num(self.kp_se),
+            "ki_se_first_order": _num(self.ki_se),
+            "kp_sd_monte_carlo": _num(self.kp_sd_mc),
+            "ki_sd_monte_carlo": _num(self.ki_sd_mc),
             "calibrated": self.calibrated,
+            "crossover_hz": None if self.crossover is None else self.crossover.to_dict(),
             "bandwidth_hz": self.bandwidth.to_dict(),
             "phase_margin_deg": self.phase_margin.to_dict(),
         }
@@ -212,15 +153,20 @@ class CurrentLoopDesign:
     """Current-loop gains of both axes, their uncertainty and the achieved loop.
 
     Attributes:
-        bandwidth_hz: requested bandwidth (Hz); omega_c = 2 pi bandwidth (rad/s).
+        bandwidth_hz: the requested -3 dB bandwidth (Hz), None for another kind of specification.
+        omega_c: the d axis's designed crossover (rad/s).
         sample_rate_hz: controller sample rate (Hz), or None (continuous time).
         discretisation: the controller and loop model, in words.
         num_samples, seed: Monte Carlo draws and their seed.
         axes: d and q.
         warnings: plain-language caveats.
+        spec_kind, spec_value: the specification met ("bandwidth" Hz, "crossover" Hz, "phase_margin" deg).
+        delay_samples: the command delay of the loop (controller samples; 0 in continuous time).
+        delay_source: where that delay came from, in words.
+        limits: what the sampled loop can reach (:func:`reachable`), None in continuous time.
     """
 
-    bandwidth_hz: float
+    bandwidth_hz: float | None
     omega_c: float
     sample_rate_hz: float | None
     discretisation: str
@@ -228,13 +174,22 @@ class CurrentLoopDesign:
     seed: int
     axes: tuple[AxisGains, ...]
     warnings: tuple[str, ...]
+    spec_kind: str = "bandwidth"
+    spec_value: float = math.nan
+    delay_samples: float = 0.0
+    delay_source: str = "continuous time: no delay"
+    limits: dict[str, float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The ``gains`` JSON (SI units: V/A, V/(A*s), Hz, deg)."""
         return {
+            "specification": {"kind": self.spec_kind, "value": self.spec_value, "unit": SPECS[self.spec_kind][1]},
             "bandwidth_hz": self.bandwidth_hz,
             "omega_c": self.omega_c,
             "sample_rate_hz": self.sample_rate_hz,
+            "delay_samples": self.delay_samples,
+            "delay_source": self.delay_source,
+            "reachable": self.limits,
             "discretisation": self.discretisation,
             "monte_carlo": {"num_samples": self.num_samples, "seed": self.seed},
             "axes": {a.axis: a.to_dict() for a in self.axes},
@@ -245,15 +200,18 @@ class CurrentLoopDesign:
 def _draws(cal: Calibration, estimate: np.ndarray, num_samples: int, seed: int) -> np.ndarray:
     """Motors from N(estimate, Cov) over the fitted names, shape (S, len(names)); the rest fixed.
 
-    Where the covariance is not finite outside the gains' parameters (R, Ld, Lq), only their
+    Where the covariance is not finite outside the gains' parameters (R, Ld, Lq, delay), only their
     block is drawn (the marginal of the same normal).
     """
     rng = np.random.default_rng(seed)
     cov = np.asarray(cal.covariance, dtype=float)
     keep = list(range(len(cal.fit_names)))
     if not np.all(np.isfinite(cov)):
-        keep = [i for i, n in enumerate(cal.fit_names) if n in _GAIN_PARAMS]
+        keep = [i for i, n in enumerate(cal.fit_names) if n in _GAIN_PARAMS + ("delay",)]
         cov = cov[np.ix_(keep, keep)]
+        if not np.all(np.isfinite(cov)):  # the delay's block undefined too: draw R, Ld, Lq only
+            keep = [i for i in keep if cal.fit_names[i] in _GAIN_PARAMS]
+            cov = np.asarray(cal.covariance, dtype=float)[np.ix_(keep, keep)]
     idx = [cal.names.index(cal.fit_names[i]) for i in keep]
     out = np.broadcast_to(estimate, (num_samples, len(cal.names))).copy()
     if idx:
@@ -292,22 +250,94 @@ def _gain_inputs(cal: Calibration, source: str) -> np.ndarray:
     return estimate
 
 
+def _spec(bandwidth_hz, crossover_hz, phase_margin_deg, sample_rate_hz) -> tuple[str, float]:
+    """The one specification given, checked: ``(kind, value)``."""
+    given = {k: v for k, v in (("bandwidth", bandwidth_hz), ("crossover", crossover_hz),
+                               ("phase_margin", phase_margin_deg)) if v is not None}
+    if len(given) != 1:
+        got = " and ".join(SPECS[k][0] for k in given) or "none"
+        raise DrivecalError(f"give exactly one of --bandwidth, --crossover or --phase-margin (got {got}).")
+    (kind, value), = given.items()
+    option, unit = SPECS[kind]
+    if not (isinstance(value, (int, float)) and value > 0 and math.isfinite(value)):
+        example = "60" if kind == "phase_margin" else "1000"
+        raise DrivecalError(f"{option} {value}: must be a positive number of {unit}, e.g. {example}.")
+    if kind == "phase_margin":
+        if sample_rate_hz is None:
+            raise DrivecalError(f"{option} needs --sample-rate: without sampling and delay the loop has 90 deg of "
+                                "margin at any crossover.")
+        if not MIN_PHASE_MARGIN <= value < 90.0:
+            raise DrivecalError(f"{option} {value:g} deg is not reachable: a PI with pole-zero cancellation gives "
+                                f"{MIN_PHASE_MARGIN:g} deg (lowest accepted) up to just under 90 deg; choose one in "
+                                "that range.")
+    return kind, float(value)
+
+
+def _delay(cal: Calibration, estimate: np.ndarray, sample_rate_hz, delay_samples,
+           delay_sample_rate_hz) -> tuple[float, float, str, list[str]]:
+    """``(delay in controller samples, controller samples per calibration sample, where from, warnings)``."""
+    if sample_rate_hz is None:
+        return 0.0, 1.0, "continuous time: no delay", []
+    if delay_samples is not None:
+        if not (delay_samples >= 0 and math.isfinite(delay_samples)):
+            raise DrivecalError(f"--delay {delay_samples}: must be a number of samples >= 0, e.g. 1.")
+        return float(delay_samples), 1.0, "given (--delay)", []
+    fitted = "delay" in cal.fit_names and "delay" in cal.names
+    value = estimate[cal.names.index("delay")] if fitted else float(cal.prior.delay)
+    if fitted and not math.isfinite(value):
+        return 1.0, 1.0, "one sample of computation delay", ["the calibration's fitted delay is null; the loop "
+                                                             "uses one sample"]
+    if not (math.isfinite(value) and (value > 0 or fitted)):
+        return 1.0, 1.0, "one sample of computation delay: the calibration has no fitted delay", []
+    warnings = []
+    if delay_sample_rate_hz is None:
+        scale = 1.0
+        warnings.append("the bench's sample rate is not in the result; its delay is taken in controller samples")
+    else:
+        scale = sample_rate_hz / delay_sample_rate_hz
+    what = "fitted" if fitted else "fixed (not fitted)"
+    if value < 0:
+        warnings.append(f"the fitted delay {value:.4g} samples is negative; the loop uses 0")
+    at = "" if delay_sample_rate_hz is None else f" at {delay_sample_rate_hz:g} Hz"
+    return max(value, 0.0) * scale, scale, f"the calibration's {what} delay, {value:.4g} samples{at}", warnings
+
+
+def _not_reachable(kind: str, value: float, limits: dict[str, float], sample_rate_hz: float, delay: float) -> str:
+    option, unit = SPECS[kind]
+    return (f"{option} {value:g} {unit} is not reachable at --sample-rate {sample_rate_hz:g} Hz with a delay of "
+            f"{delay:.3g} sample(s): with at least {MIN_PHASE_MARGIN:g} deg of phase margin the crossover reaches at "
+            f"most {limits['max_crossover_hz']:.4g} Hz and the closed-loop -3 dB bandwidth "
+            f"{limits['max_bandwidth_hz']:.4g} Hz; lower the specification or raise the sample rate.")
+
+
 def design_current_loop(
     cal: Calibration,
-    bandwidth_hz: float,
+    bandwidth_hz: float | None = None,
     *,
+    crossover_hz: float | None = None,
+    phase_margin_deg: float | None = None,
     sample_rate_hz: float | None = None,
+    delay_samples: float | None = None,
+    delay_sample_rate_hz: float | None = None,
     num_samples: int = 4000,
     seed: int = 0,
     source: str = "the calibration",
 ) -> CurrentLoopDesign:
-    """PI gains for both current axes, their uncertainty, and the loop they achieve.
+    """PI gains for both current axes meeting one specification, their uncertainty, and the loop they achieve.
 
     Args:
         cal: a single calibration (``Calibration.from_dict`` of a saved result works).
-        bandwidth_hz: requested closed-loop bandwidth (Hz), > 0.
-        sample_rate_hz: controller sample rate (Hz); None judges the loop in
-            continuous time. Must be at least ``bandwidth / MAX_BANDWIDTH_FRACTION``.
+        bandwidth_hz: closed-loop -3 dB bandwidth (Hz) of the sampled loop with its delay; or
+        crossover_hz: open-loop crossover (Hz); or
+        phase_margin_deg: phase margin (deg, ``MIN_PHASE_MARGIN`` to 90; needs a sample rate).
+            Exactly one of the three.
+        sample_rate_hz: controller sample rate (Hz); None designs and judges
+            the loop in continuous time without delay (``Kp = L w_c``, ``Ki = R w_c``).
+        delay_samples: the command's delay (controller samples, >= 0); None
+            takes the calibration's fitted ``delay`` (or its fixed non-zero one),
+            else one sample of computation delay.
+        delay_sample_rate_hz: the sample rate (Hz) of the calibration's delay
+            (the bench's); None: the same as ``sample_rate_hz``.
         num_samples: Monte Carlo draws from the parameter covariance.
         seed: Monte Carlo seed.
         source: where ``cal`` came from (the result file), for messages.
@@ -316,33 +346,31 @@ def design_current_loop(
     gains that use it have no uncertainty, with a warning).
 
     Raises:
-        DrivecalError: non-positive bandwidth or sample rate, a bandwidth too
-            high for the sample rate, R, Ld or Lq not estimated (null, or not
-            positive), the covariance of a fitted one undefined, or so wide that
-            (almost) every Monte Carlo draw has a non-positive R or L.
+        DrivecalError: not exactly one specification, a non-positive value or
+            sample rate, a specification the sampled loop cannot reach with
+            ``MIN_PHASE_MARGIN`` of margin (the message says what it can), R,
+            Ld or Lq not estimated (null, or not positive), the covariance of a
+            fitted one undefined, or so wide that (almost) every Monte Carlo
+            draw has a non-positive R or L.
     """
-    if not (bandwidth_hz > 0 and math.isfinite(bandwidth_hz)):
-        raise DrivecalError(f"--bandwidth {bandwidth_hz}: must be a positive number of Hz, e.g. 1000.")
-    if sample_rate_hz is not None:
-        if not (sample_rate_hz > 0 and math.isfinite(sample_rate_hz)):
-            raise DrivecalError(f"--sample-rate {sample_rate_hz}: must be a positive number of Hz, e.g. 20000.")
-        if bandwidth_hz > MAX_BANDWIDTH_FRACTION * sample_rate_hz:
-            raise DrivecalError(
-                f"--bandwidth {bandwidth_hz:g} Hz is above {MAX_BANDWIDTH_FRACTION:g} x --sample-rate "
-                f"{sample_rate_hz:g} Hz; lower the bandwidth to at most {MAX_BANDWIDTH_FRACTION * sample_rate_hz:g} "
-                "Hz or raise the sample rate."
-            )
+    if sample_rate_hz is not None and not (sample_rate_hz > 0 and math.isfinite(sample_rate_hz)):
+        raise DrivecalError(f"--sample-rate {sample_rate_hz}: must be a positive number of Hz, e.g. 20000.")
+    kind, value = _spec(bandwidth_hz, crossover_hz, phase_margin_deg, sample_rate_hz)
     if not all(n in cal.names for n in _GAIN_PARAMS):
         raise DrivecalError(f"{source}: the result does not estimate R, Ld and Lq; gains need all three.")
-    w_c = 2.0 * math.pi * bandwidth_hz
+    fs = sample_rate_hz
     estimate = _gain_inputs(cal, source)
+    delay, delay_scale, delay_source, warnings = _delay(cal, estimate, fs, delay_samples, delay_sample_rate_hz)
     est = dict(zip(cal.names, estimate))
     fit_idx = {n: i for i, n in enumerate(cal.fit_names)}
+    delay_fitted = (fs is not None and delay_samples is None and "delay" in fit_idx and "delay" in cal.names
+                    and math.isfinite(est["delay"]))
     cov = np.asarray(cal.covariance, dtype=float)
     draws = _draws(cal, estimate, num_samples, seed)
     col = {n: draws[:, i] for i, n in enumerate(cal.names)}
     ok = np.all(draws[:, [cal.names.index(n) for n in _GAIN_PARAMS]] > 0, axis=1)
-    warnings = []
+    if delay_fitted:
+        ok &= np.isfinite(col["delay"])
     if ok.sum() < 2:
         raise DrivecalError(f"{source}: {int((~ok).sum())} of {num_samples} Monte Carlo draws from the covariance "
                             "have a non-positive R or L, too few left to judge the loop; refit with more data (a "
@@ -350,52 +378,87 @@ def design_current_loop(
     if not ok.all():
         warnings.append(f"{int((~ok).sum())} of {num_samples} Monte Carlo draws had a non-positive R or L and "
                         "were dropped")
-    ts = None if sample_rate_hz is None else 1.0 / sample_rate_hz
+    d_draws = np.maximum(col["delay"][ok], 0.0) * delay_scale if delay_fitted else delay
+    limits = None
 
-    def first_order_sd(name: str) -> float:
-        # d(gain)/d(theta) is w_c on the one parameter the gain is proportional to.
-        return w_c * math.sqrt(cov[fit_idx[name], fit_idx[name]]) if name in fit_idx else math.nan
+    def gains_of(params: dict[str, Any]):
+        return design_gains(kind, value, params["R"], params["L"], fs, params["delay"])
 
     axes = []
     for axis, lname in AXES:
         r, ind = est["R"], est[lname]
-        kp, ki = pi_gains(r, ind, bandwidth_hz)
+        nominal = {"R": r, "L": ind, "delay": delay}
+        kp, ki = (float(np.squeeze(g)) for g in gains_of(nominal))
+        ref = value if kind != "phase_margin" else fs * 1e-4  # the search reaches down to fs * 1e-7
+        fc0, bw0, pm0 = (float(x[0]) for x in loop_figures(kp, ki, r, ind, ref, fs, delay))
+        if fs is not None:
+            axis_limits = reachable(r, ind, fs, delay)
+            limits = limits or axis_limits
+            met = {"crossover": fc0, "bandwidth": bw0, "phase_margin": pm0}[kind]
+            if (value >= 0.5 * fs or not (kp > 0 and ki > 0) or not pm0 >= MIN_PHASE_MARGIN - 1e-6
+                    or not abs(met - value) <= 1e-6 * value):
+                raise DrivecalError(_not_reachable(kind, value, axis_limits, fs, delay))
+        # First order: central differences of the design map over the parameters it is made of.
+        names = [("R", "R"), ("L", lname)] + ([("delay", "delay")] if delay_fitted else [])
+        jac = np.zeros((2, len(names)))
+        for j, (key, pname) in enumerate(names):
+            step = 1e-6 * (abs(nominal[key]) if key != "delay" else 1.0)
+            hi, lo = dict(nominal), dict(nominal)
+            hi[key] = nominal[key] + step
+            lo[key] = nominal[key] - step
+            scale = delay_scale if key == "delay" else 1.0
+            jac[:, j] = [(float(np.squeeze(a)) - float(np.squeeze(b))) / (2 * step) * scale
+                         for a, b in zip(gains_of(hi), gains_of(lo))]
+        uses = np.abs(jac) * np.abs([est[p] if p != "delay" else 1.0 for _, p in names]) > 1e-7 * np.abs(
+            [[kp], [ki]])
+        known = np.array([p in fit_idx for _, p in names])
+        fitted = [fit_idx[p] for _, p in names if p in fit_idx]
+        j_fit = jac[:, known]
+        first = np.sqrt(np.diag(j_fit @ cov[np.ix_(fitted, fitted)] @ j_fit.T)) if fitted else np.full(2, np.nan)
+        defined = ~np.any(uses & ~known, axis=1)
+        kp_mc, ki_mc = gains_of({"R": col["R"][ok], "L": col[lname][ok], "delay": d_draws})
+        mc = np.array([np.std(kp_mc, ddof=1), np.std(ki_mc, ddof=1)])
+        fc, bw, pm = loop_figures(kp, ki, col["R"][ok], col[lname][ok], fc0 if math.isfinite(fc0) else ref, fs,
+                                  d_draws)
         calibrated = "R" in fit_idx and lname in fit_idx
-        kp_mc, ki_mc = pi_gains(col["R"][ok], col[lname][ok], bandwidth_hz)
-        bw0, pm0 = loop_metrics(kp, ki, r, ind, bandwidth_hz, sample_rate_hz)
-        bw, pm = loop_metrics(kp, ki, col["R"][ok], col[lname][ok], bandwidth_hz, sample_rate_hz)
         axes.append(AxisGains(
             axis=axis,
             inductance_name=lname,
             inductance=float(ind),
             resistance=float(r),
-            kp=float(kp),
-            ki=float(ki),
-            ki_ts=None if ts is None else float(ki * ts),
-            kp_se=first_order_sd(lname),
-            ki_se=first_order_sd("R"),
-            kp_sd_mc=float(np.std(kp_mc, ddof=1)) if lname in fit_idx else math.nan,
-            ki_sd_mc=float(np.std(ki_mc, ddof=1)) if "R" in fit_idx else math.nan,
+            kp=kp,
+            ki=ki,
+            ki_ts=None if fs is None else ki / fs,
+            kp_se=float(first[0]) if defined[0] else math.nan,
+            ki_se=float(first[1]) if defined[1] else math.nan,
+            kp_sd_mc=float(mc[0]) if defined[0] else math.nan,
+            ki_sd_mc=float(mc[1]) if defined[1] else math.nan,
             calibrated=calibrated,
-            bandwidth=Spread.of(bw0[0], bw),
-            phase_margin=Spread.of(pm0[0], pm),
+            bandwidth=Spread.of(bw0, bw),
+            phase_margin=Spread.of(pm0, pm),
+            crossover=Spread.of(fc0, fc),
         ))
         if not calibrated:
             missing = [n for n in ("R", lname) if n not in fit_idx]
             warnings.append(f"{axis} axis: {', '.join(missing)} not identified by this calibration; its gains use "
                             "the prior value and their uncertainty is unknown")
-    if sample_rate_hz is None:
+    if fs is None:
         disc = "continuous-time PI C(s) = Kp + Ki/s on G(s) = 1/(L s + R), no delay"
     else:
-        disc = (f"discrete PI at {sample_rate_hz:g} Hz: u[k] = Kp e[k] + x[k], x[k+1] = x[k] + Ki*Ts e[k] "
-                "(forward-Euler integrator), ZOH plant, one-sample computation delay")
+        disc = (f"discrete PI at {fs:g} Hz: u[k] = Kp e[k] + x[k], x[k+1] = x[k] + Ki*Ts e[k] (forward-Euler "
+                f"integrator), its zero on the plant pole exp(-R Ts/L), command delay {delay:.4g} sample(s)")
     return CurrentLoopDesign(
-        bandwidth_hz=float(bandwidth_hz),
-        omega_c=w_c,
-        sample_rate_hz=None if sample_rate_hz is None else float(sample_rate_hz),
+        bandwidth_hz=value if kind == "bandwidth" else None,
+        omega_c=2.0 * math.pi * axes[0].crossover.nominal,
+        sample_rate_hz=None if fs is None else float(fs),
         discretisation=disc,
         num_samples=int(num_samples),
         seed=int(seed),
         axes=tuple(axes),
         warnings=tuple(warnings),
+        spec_kind=kind,
+        spec_value=value,
+        delay_samples=float(delay),
+        delay_source=delay_source,
+        limits=limits,
     )
