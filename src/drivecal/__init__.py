@@ -39,6 +39,7 @@ _API: dict[str, str] = {
     "MotorFile": "data",
     "MotorParams": "physics",
     "NUISANCE": "physics",
+    "MECHANICAL": "physics",
     "OptimalDesign": "design",
     "Plan": "plan",
     "SaturationCheck": "diagnose",

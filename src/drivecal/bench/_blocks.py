@@ -11,7 +11,8 @@ from typing import Any
 from ..physics import MotorParams
 
 
-def pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: Any = None, name: str = "pmsm"):
+def pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: Any = None, name: str = "pmsm",
+               load_port: bool = False):
     """A ``jaxonomy.library.drives.PMSM`` with the parameters of ``motor``.
 
     Args:
@@ -19,6 +20,9 @@ def pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: Any =
         locked: clamp the rotor (standstill bench); fixed when the block is built.
         initial_state: ``[i_d, i_q, w_m, theta_m]`` (A, A, rad/s, rad); default rest.
         name: block name in the diagram.
+        load_port: take the load torque (N*m) from input port 1 instead of
+            ``motor.T_load`` (the engine bench feeds it the Coulomb friction and
+            the load; the block itself has no Coulomb friction).
 
     Returns:
         The block; input port 0 is ``[v_d, v_q]`` (V), output port 0 the state,
@@ -37,5 +41,6 @@ def pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: Any =
         T_load=float(motor.T_load),
         initial_state=initial_state,
         locked=bool(locked),
+        enable_load_port=bool(load_port),
         name=name,
     )

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..data import BenchData, SegmentData
 from ..errors import PlanError
-from ..physics import MotorParams, dead_time_error, delayed, resistance_at, sensor_offsets
+from ..physics import MotorParams, coulomb_friction, dead_time_error, delayed, resistance_at, sensor_offsets
 from ..plan import Plan, Segment
 
 #: Engine tolerances: tight enough that the bench is exact to ~1e-9 A.
@@ -55,7 +55,8 @@ def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float,
 
     The bench effects of ``motor`` act as on a real bench: R at the segment's
     winding temperature, the inverter's dead-time error fed back from the
-    block's currents and angle, the commands applied ``delay_samples`` late.
+    block's currents and angle, the commands applied ``delay_samples`` late,
+    Coulomb friction fed back from the block's speed to its load port.
     A fractional delay (0.5, 1.5: the PWM loads its duty mid-period) runs the
     engine on a grid ``k`` times finer, each command held for ``k`` of its
     steps and applied ``delay * k`` of them late; the states are read back
@@ -75,41 +76,54 @@ def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float,
     if float(motor.v_dead) != 0.0:
         dead = (float(motor.pole_pairs), float(motor.v_dead), float(motor.i_dead))
     volts = np.ascontiguousarray(delayed(segment.voltages(sample_rate), delay_samples), dtype=float)
+    friction = None
+    if float(motor.T_coulomb) != 0.0 and not segment.locked:
+        friction = (float(motor.T_load), float(motor.T_coulomb), float(motor.w_coulomb))
     setup = _pmsm_setup(tuple((f.name, float(getattr(warm, f.name))) for f in dataclasses.fields(warm)),
-                        bool(segment.locked), volts.tobytes(), float(sample_rate), dead)
+                        bool(segment.locked), volts.tobytes(), float(sample_rate), dead, friction)
     return _run_on_engine(setup, sample_rate, label=f"segment '{segment.name}'")
 
 
 @functools.lru_cache(maxsize=8)
-def _pmsm_setup(motor_values: tuple, locked: bool, volts: bytes, sample_rate: float, dead: tuple | None):
+def _pmsm_setup(motor_values: tuple, locked: bool, volts: bytes, sample_rate: float, dead: tuple | None,
+                friction: tuple | None = None):
     """The bench diagram of one segment on one motor, built once: the same segment
     run again (the demo's second design repeats the locked q-step) reuses the
     diagram and so the engine's compiled kernel; the run itself is repeated.
 
     ``motor_values``: ``(name, value)`` of every ``MotorParams`` field;
     ``volts``: the applied ``[v_d, v_q]`` (float64, shape (N, 2)) as bytes;
-    ``dead``: ``(pole_pairs, v_dead, i_dead)`` of the dead-time feedback, or None.
+    ``dead``: ``(pole_pairs, v_dead, i_dead)`` of the dead-time feedback, or None;
+    ``friction``: ``(T_load, T_coulomb, w_coulomb)`` of the load-port feedback, or None.
     """
+    import jax.numpy as jnp
+
     from ._blocks import pmsm_block
 
-    block = pmsm_block(MotorParams(**dict(motor_values)), locked=locked, name="pmsm")
+    block = pmsm_block(MotorParams(**dict(motor_values)), locked=locked, name="pmsm", load_port=friction is not None)
+    load = None
+    if friction is not None:
+        t_load, t_coulomb, w_coulomb = friction
+
+        def load(state):
+            return t_load + coulomb_friction(state[2], t_coulomb, w_coulomb)
+
     error = None
     if dead is not None:
-        import jax.numpy as jnp
-
         pole_pairs, v_dead, i_dead = dead
 
         def error(state):
             return jnp.stack(dead_time_error(state[0], state[1], pole_pairs * state[3], v_dead, i_dead))
 
-    return _held_voltage_diagram(block, np.frombuffer(volts).reshape(-1, 2), sample_rate, error)
+    return _held_voltage_diagram(block, np.frombuffer(volts).reshape(-1, 2), sample_rate, error, load)
 
 
-def _held_voltage_diagram(block, voltages: np.ndarray, sample_rate: float, voltage_error=None):
+def _held_voltage_diagram(block, voltages: np.ndarray, sample_rate: float, voltage_error=None, load_torque=None):
     """(diagram, its context, the block, the number of samples) for ``run_held_voltages``.
 
     The source outputs row k of ``voltages`` (shape (N, 2)) on ``[t_k, t_k+1)``;
-    a zero-order hold at the sample period feeds the block.
+    a zero-order hold at the sample period feeds the block. ``load_torque``:
+    optional ``f(state) -> T`` (N*m) fed back to the block's load port (input 1).
     """
     import jax.numpy as jnp
     from jaxonomy import DiagramBuilder
@@ -139,6 +153,10 @@ def _held_voltage_diagram(block, voltages: np.ndarray, sample_rate: float, volta
         builder.connect(hold.output_ports[0], applied.input_ports[0])
         builder.connect(error.output_ports[0], applied.input_ports[1])
         builder.connect(applied.output_ports[0], pmsm.input_ports[0])
+    if load_torque is not None:
+        load = builder.add(FeedthroughBlock(load_torque, name="load_torque"))
+        builder.connect(pmsm.output_ports[0], load.input_ports[0])
+        builder.connect(load.output_ports[0], pmsm.input_ports[1])
     diagram = builder.build()
     return diagram, diagram.create_context(), pmsm, n
 

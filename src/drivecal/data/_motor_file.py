@@ -34,6 +34,8 @@ class MotorSpec(StrictModel):
     J: quantity("inertia") = float(DEFAULT_MOTOR.J)
     B: quantity("friction") = float(DEFAULT_MOTOR.B)
     T_load: quantity("torque") = 0.0
+    T_coulomb: quantity("torque") = 0.0
+    w_coulomb: quantity("speed") = float(DEFAULT_MOTOR.w_coulomb)
     v_dead: quantity("voltage") = 0.0
     i_dead: quantity("current") = float(DEFAULT_MOTOR.i_dead)
     offset_d: quantity("current") = 0.0
@@ -44,7 +46,7 @@ class MotorSpec(StrictModel):
     T_ref: quantity("temperature") = float(DEFAULT_MOTOR.T_ref)
     delay_samples: float = Field(default=0.0, ge=0, le=100, allow_inf_nan=False)
     estimate: list[Literal["R", "Ld", "Lq", "lambda_m", "delay", "v_dead", "i_dead", "offset_d", "offset_q",
-                           "offset_a", "offset_b", "alpha_R"]] | None = None
+                           "offset_a", "offset_b", "alpha_R", "J", "B", "T_coulomb", "T_load"]] | None = None
 
 
 class MotorFile(BaseModel):
@@ -104,7 +106,10 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
             raise DrivecalError(f"{source}: '{name}' must be a finite number, got {value!r}.")
         if name == "v_dead" and value < 0:
             raise DrivecalError(f"{source}: 'v_dead' is a voltage magnitude and must be >= 0, got {value!r}.")
-        if not value > 0 and name not in signed + ("v_dead",):
+        if name == "T_coulomb" and value < 0:
+            raise DrivecalError(f"{source}: 'T_coulomb' is a friction torque magnitude (it acts against the speed's "
+                                f"sign) and must be >= 0, got {value!r}.")
+        if not value > 0 and name not in signed + ("v_dead", "T_coulomb"):
             raise DrivecalError(f"{source}: '{name}' must be a positive number, got {value!r}.")
     motor = MotorParams(**{k: float(v) for k, v in values.items()}, delay=float(spec.delay_samples))
     estimate = None if spec.estimate is None else tuple(spec.estimate)

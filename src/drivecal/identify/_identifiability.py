@@ -28,7 +28,7 @@ from ..model import cached_call
 from .._stats import t_ppf
 from ..errors import DrivecalError
 from ..model import Experiment, model_experiment, predict_currents, simulate_states
-from ..physics import ADDITIVE_SCALE, ESTIMATED, MotorParams, dq_to_abc, search_scale
+from ..physics import ADDITIVE_SCALE, ESTIMATED, MECHANICAL, MotorParams, dq_to_abc, search_scale
 
 #: A parameter whose relative sensitivity is below this fraction of the
 #: strongest one is dead: at double precision it is zero.
@@ -240,6 +240,12 @@ def structural_reason(name: str, experiment: Experiment) -> str | None:
             return f"every segment at one winding temperature ({known[0]:g} degC): alpha_R cannot be told from R"
     if name in ("offset_a", "offset_b") and not experiment.has_angle:
         return "per-phase offsets need a phase (abc) bench file with a rotor angle"
+    if name in MECHANICAL:
+        if locked.all():
+            return "no free-rotor segment (the mechanics act only where the rotor turns)"
+        if np.all(np.asarray(experiment.speed_input)[~locked] > 0.5):
+            return ("the measured speed drives the model in every free segment (--measured-speed), so the "
+                    "mechanics never reach the currents")
     return None
 
 
@@ -347,6 +353,8 @@ def check_requested(names: tuple[str, ...], experiment: Experiment, source: str)
                 "alpha_R": "run segments at two or more winding temperatures",
                 "offset_a": "give a phase bench file (i_a, i_b, v_a, v_b, theta_e) or estimate offset_d/offset_q",
                 "offset_b": "give a phase bench file (i_a, i_b, v_a, v_b, theta_e) or estimate offset_d/offset_q",
+                **dict.fromkeys(MECHANICAL, "fit with --simulated-speed on a run with a free segment (a spin-up "
+                                            "followed by a coast-down shows friction best)"),
             }[name]
             raise DrivecalError(
                 f"{source}: {name} is requested ('estimate' in the motor file) but the run has {reason}; "

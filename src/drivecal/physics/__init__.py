@@ -4,13 +4,15 @@ voltage error and delay, the current sensors' offsets."""
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
 from ._inverter import dead_time_error
 from ._motor import (ADDITIVE_SCALE, DEFAULT_MOTOR, DESCRIPTIONS, DqCoefficients, ESTIMABLE, ESTIMATED, FIXED,
-                     MotorParams, NUISANCE, SETTINGS, UNITS, dq_coefficients, dq_derivatives, dq_derivatives_from,
+                     MECHANICAL, MotorParams, NUISANCE, SETTINGS, UNITS, coulomb_friction, dq_coefficients,
+                     dq_derivatives, dq_derivatives_from,
                      from_search, parameter_values, resistance_at, search_scale, to_search, with_d_flux)
 from ._sensors import delayed, sensor_offsets, with_dq_offsets
 from ._transforms import abc_to_dq, clarke, dq_to_abc, inverse_clarke, inverse_park, park
 
 __all__ = ["ADDITIVE_SCALE", "DEFAULT_MOTOR", "DESCRIPTIONS", "DqCoefficients", "ESTIMABLE", "ESTIMATED", "FIXED",
-           "MotorParams", "NUISANCE", "SETTINGS", "UNITS", "abc_to_dq", "clarke", "dead_time_error", "delayed",
+           "MECHANICAL", "MotorParams", "NUISANCE", "SETTINGS", "UNITS", "abc_to_dq", "clarke", "coulomb_friction",
+           "dead_time_error", "delayed",
            "dq_coefficients", "dq_derivatives", "dq_derivatives_from", "dq_to_abc", "from_search", "inverse_clarke",
            "inverse_park", "parameter_values", "park", "resistance_at", "search_scale", "sensor_offsets", "to_search",
            "with_d_flux", "with_dq_offsets"]

@@ -7,11 +7,14 @@ theta_m]`` (A, A, rad/s, rad), input ``v = [v_d, v_q]`` (V), electrical speed
     Ld * di_d/dt = v_d - R*i_d + w_e*Lq*i_q
     Lq * di_q/dt = v_q - R*i_q - w_e*(Ld*i_d + lambda_m)
     Te = 1.5*pole_pairs*(lambda_m*i_q + (Ld - Lq)*i_d*i_q)
-    J * dw_m/dt = Te - B*w_m - T_load ;  dtheta_m/dt = w_m
+    J * dw_m/dt = Te - B*w_m - T_coulomb*tanh(w_m/w_coulomb) - T_load ;  dtheta_m/dt = w_m
 
 With the rotor locked (standstill bench) ``dw_m/dt = dtheta_m/dt = 0``.
 These are exactly the equations of ``jaxonomy.library.drives.PMSM``; the
 conformance test in ``tests/physics/test_motor.py`` holds the two together.
+Coulomb friction (:func:`coulomb_friction`, a smooth sign so that the Jacobian
+exists) is not in the block: the engine bench feeds it to the block's load port
+from the same function.
 """
 
 from __future__ import annotations
@@ -32,10 +35,14 @@ FIXED: tuple[str, ...] = ("pole_pairs", "J", "B")
 #: optional: estimated only when named (motor file ``estimate``), else held at
 #: the motor file's value (zero by default: an ideal inverter and sensors).
 NUISANCE: tuple[str, ...] = ("delay", "v_dead", "i_dead", "offset_d", "offset_q", "offset_a", "offset_b", "alpha_R")
+#: Mechanical parameters, estimable when named (J and B are otherwise held at the motor file's
+#: values, T_coulomb and T_load at zero): they act on the currents only where the rotor turns and
+#: its speed is simulated, not taken from a measured speed.
+MECHANICAL: tuple[str, ...] = ("J", "B", "T_coulomb", "T_load")
 #: Every parameter a fit may estimate, in drivecal's order.
-ESTIMABLE: tuple[str, ...] = ESTIMATED + NUISANCE
-#: Settings of the bench-effect models, never estimated.
-SETTINGS: tuple[str, ...] = ("T_load", "T_ref")
+ESTIMABLE: tuple[str, ...] = ESTIMATED + NUISANCE + MECHANICAL
+#: Settings of the models, never estimated.
+SETTINGS: tuple[str, ...] = ("T_ref", "w_coulomb")
 #: Parameters that may be zero or negative: searched additively around the
 #: prior in steps of this size (their unit), not as ``ln(theta/prior)``.
 ADDITIVE_SCALE: dict[str, float] = {
@@ -45,6 +52,8 @@ ADDITIVE_SCALE: dict[str, float] = {
     "offset_q": 0.01,
     "offset_a": 0.01,
     "offset_b": 0.01,
+    "T_coulomb": 1e-3,
+    "T_load": 1e-3,
 }
 
 #: SI unit of every parameter, for tables and JSON.
@@ -64,6 +73,8 @@ UNITS: dict[str, str] = {
     "offset_b": "A",
     "alpha_R": "1/K",
     "T_load": "N*m",
+    "T_coulomb": "N*m",
+    "w_coulomb": "rad/s",
     "i_dead": "A",
     "T_ref": "degC",
 }
@@ -85,6 +96,8 @@ DESCRIPTIONS: dict[str, str] = {
     "offset_b": "phase-b current-sensor offset",
     "alpha_R": "temperature coefficient of R",
     "T_load": "load torque",
+    "T_coulomb": "Coulomb (dry) friction torque",
+    "w_coulomb": "speed width of the Coulomb friction's sign",
     "i_dead": "current width of the dead-time transition",
     "T_ref": "temperature at which R is stated",
 }
@@ -105,6 +118,10 @@ class MotorParams(eqx.Module):
         J: rotor inertia (kg*m^2).
         B: viscous friction (N*m*s).
         T_load: constant load torque (N*m); zero on an unloaded bench.
+        T_coulomb: Coulomb (dry) friction torque (N*m), against the speed's
+            sign: ``T_coulomb * tanh(w_m / w_coulomb)`` (:func:`coulomb_friction`).
+        w_coulomb: speed (rad/s) over which the Coulomb friction's smooth sign
+            turns (tanh: 76 % of ``T_coulomb`` at ``w_coulomb``); a setting.
         delay: the inverter's command delay (samples, may be fractional):
             the voltage commanded at sample k acts from ``(k + delay) * T_s``
             (computation delay plus the PWM's effective update instant).
@@ -132,6 +149,8 @@ class MotorParams(eqx.Module):
     J: Any = 1.2e-3
     B: Any = 8.0e-5
     T_load: Any = 0.0
+    T_coulomb: Any = 0.0
+    w_coulomb: Any = 1.0
     delay: Any = 0.0
     v_dead: Any = 0.0
     i_dead: Any = 0.05
@@ -183,6 +202,8 @@ class DqCoefficients(NamedTuple):
         tr_j: 1.5 * pole_pairs * (Ld - Lq) / J (1/(A^2*s^2)), times ``i_d * i_q``.
         b_j: B / J (1/s).
         load_j: T_load / J (rad/s^2).
+        coulomb_j: T_coulomb / J (rad/s^2), times ``tanh(w_m / w_coulomb)``.
+        w_coulomb: the Coulomb friction's speed width (rad/s).
     """
 
     inv_ld: Any
@@ -196,6 +217,8 @@ class DqCoefficients(NamedTuple):
     tr_j: Any
     b_j: Any
     load_j: Any
+    coulomb_j: Any = 0.0
+    w_coulomb: Any = 1.0
 
 
 def dq_coefficients(motor: MotorParams) -> DqCoefficients:
@@ -213,7 +236,18 @@ def dq_coefficients(motor: MotorParams) -> DqCoefficients:
         tr_j=1.5 * p * (ld - lq) / j,
         b_j=motor.B / j,
         load_j=motor.T_load / j,
+        coulomb_j=motor.T_coulomb / j,
+        w_coulomb=motor.w_coulomb,
     )
+
+
+def coulomb_friction(w_m: Any, T_coulomb: Any, w_coulomb: Any) -> Any:
+    """Coulomb (dry) friction torque (N*m) at mechanical speed ``w_m`` (rad/s): ``T_coulomb * tanh(w_m / w_coulomb)``.
+
+    Against the speed's sign; a smooth sign of speed width ``w_coulomb`` (rad/s) so that the
+    Jacobian exists. At rest it is zero: the model has no stiction.
+    """
+    return T_coulomb * jnp.tanh(w_m / w_coulomb)
 
 
 def dq_derivatives_from(coefficients: DqCoefficients, state: Any, v_dq: Any, locked: Any) -> tuple:
@@ -228,7 +262,8 @@ def dq_derivatives_from(coefficients: DqCoefficients, state: Any, v_dq: Any, loc
     di_d = c.inv_ld * v_d - c.r_ld * i_d + c.wq_ld * w_m * i_q
     di_q = c.inv_lq * v_q - c.r_lq * i_q - c.wd_lq * w_m * i_d - c.wf_lq * w_m
     free = 1.0 - jnp.asarray(locked, dtype=float)
-    dw_m = free * (c.tq_j * i_q + c.tr_j * i_d * i_q - c.b_j * w_m - c.load_j)
+    dw_m = free * (c.tq_j * i_q + c.tr_j * i_d * i_q - c.b_j * w_m - c.load_j
+                   - coulomb_friction(w_m, c.coulomb_j, c.w_coulomb))
     return di_d, di_q, dw_m, free * w_m
 
 

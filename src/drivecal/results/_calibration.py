@@ -15,7 +15,7 @@ import numpy as np
 
 from .._stats import t_ppf
 from ..identify import Identifiability
-from ..physics import ADDITIVE_SCALE, FIXED, NUISANCE, UNITS, MotorParams
+from ..physics import ADDITIVE_SCALE, FIXED, MECHANICAL, NUISANCE, UNITS, MotorParams
 from .._status import solver_message
 from ._record import validate_fit
 
@@ -134,9 +134,9 @@ class Calibration:
     @property
     def fixed(self) -> dict[str, float]:
         """Parameters held fixed: the mechanical ones, and unidentifiable ones at their prior."""
-        out = {n: float(getattr(self.prior, n)) for n in FIXED}
-        # Bench effects the user set but did not ask to estimate are assumptions too.
-        out.update({n: float(getattr(self.prior, n)) for n in NUISANCE
+        out = {n: float(getattr(self.prior, n)) for n in FIXED if n not in self.names}
+        # Bench effects and torques the user set but did not ask to estimate are assumptions too.
+        out.update({n: float(getattr(self.prior, n)) for n in NUISANCE + MECHANICAL
                     if n not in self.names and n in ADDITIVE_SCALE and float(getattr(self.prior, n)) != 0.0})
         for n, ok in zip(self.names, self.identifiable):
             if not ok:
