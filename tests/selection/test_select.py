@@ -97,9 +97,11 @@ def test_default_fit_models_the_dead_time_by_itself(dead_time_clean):
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason=(
-    "measured 2026-11-24: coverage R 0.935, Ld 0.905, Lq 0.940, lambda_m 0.885 (mean z -0.80), delay 0.83: the "
-    "smooth dead-time sign with one fitted width leaves ~3.7 mA RMS of the switching plant's per-edge dead "
-    "time unexplained (sigma_hat 20.35 mA for 20 mA of noise); issue 17 stays open until the model matches"))
+    "measured 2026-11-24: coverage R 0.935, Ld 0.905, Lq 0.940, lambda_m 0.885 (mean z -0.80), delay 0.83 "
+    "(sigma_hat 20.35 mA for 20 mA of noise). Not the average dead-time voltage law: given the plant's exact "
+    "per-period average voltages the fit still has lambda_m z -0.78 (0.04 without dead time), so it is the dead "
+    "time inside the PWM period against synchronous sampling (pulses shifted by t_dead/2, except a phase near "
+    "zero current); issue 17 stays open until the model has it"))
 def test_coverage_on_the_dead_time_bench(dead_time_clean):
     """Monte Carlo over 224 noise seeds, one batched fit of the model the selection picks on this bench.
 
