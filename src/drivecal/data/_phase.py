@@ -167,6 +167,11 @@ def _as_float(x: np.ndarray | None) -> np.ndarray | None:
     return None if x is None or x.dtype.kind not in "biuf" else x.astype(float)
 
 
+def _turn_steps(angle: np.ndarray) -> np.ndarray:
+    """Steps between successive samples of an angle (rad), each wrapped into (-pi, pi], shape (N - 1,)."""
+    return np.angle(np.exp(1j * np.diff(angle)))
+
+
 def check_pole_pairs(frame: dict, source: str, pole_pairs: float) -> None:
     """Refuse ``pole_pairs`` where the free segments' own rotation says otherwise (see the module's docstring).
 
@@ -175,30 +180,30 @@ def check_pole_pairs(frame: dict, source: str, pole_pairs: float) -> None:
         source: the file name, for the message.
         pole_pairs: the motor file's pole pairs (-).
     """
+    has = frame.keys()
+    if "locked" not in has or ("theta_m" not in has and not {"w_m", "t"} <= has) or (
+            "theta_e" not in has and not {"v_a", "v_b"} <= has):
+        return  # nothing to compare (a fleet's dq files mostly): decided before converting any column
     t, w_m, locked = _as_float(frame.get("t")), _as_float(frame.get("w_m")), _as_float(frame.get("locked"))
     theta_e, theta_m = _as_float(frame.get("theta_e")), _as_float(frame.get("theta_m"))
     phases = [_as_float(frame.get(c)) for c in ("v_a", "v_b", "v_c")]
     from_voltages = theta_e is None and phases[0] is not None and phases[1] is not None
     if locked is None or (theta_m is None and (w_m is None or t is None)) or (theta_e is None and not from_voltages):
         return
-    steps = ~_segment_starts(frame)  # (N - 1,): steps within a segment
-    free = (locked[1:] == 0) & (locked[:-1] == 0) & steps
+    free = (locked[1:] == 0) & (locked[:-1] == 0) & ~_segment_starts(frame)  # (N - 1,) steps within free segments
     with np.errstate(invalid="ignore", over="ignore"):
         if theta_e is not None:
-            electrical = np.diff(theta_e)
+            electrical = _turn_steps(theta_e)  # an angle column may wrap at 2 pi
         else:
             alpha, beta = clarke(phases[0], phases[1], phases[2])
             size = np.hypot(alpha, beta)
-            electrical = np.angle(np.exp(1j * np.diff(np.arctan2(beta, alpha))))
+            electrical = _turn_steps(np.arctan2(beta, alpha))
             strong = size > 0.1 * np.nanmax(np.where(np.r_[free, False], size, 0.0), initial=0.0)
             free = free & strong[1:] & strong[:-1]
-        if theta_e is not None:  # an angle column may wrap at 2 pi
-            electrical = np.angle(np.exp(1j * electrical))
-        mechanical = (np.angle(np.exp(1j * np.diff(theta_m))) if theta_m is not None
-                      else 0.5 * (w_m[1:] + w_m[:-1]) * np.diff(t))
+        mechanical = _turn_steps(theta_m) if theta_m is not None else 0.5 * (w_m[1:] + w_m[:-1]) * np.diff(t)
         e, m = float(np.sum(electrical[free])), float(np.sum(mechanical[free]))
-    turns = abs(e) / (2.0 * math.pi)
-    if not (math.isfinite(e) and math.isfinite(m)) or m == 0.0 or turns < (POLE_PAIR_MIN_TURNS if from_voltages else POLE_PAIR_MIN_ANGLE_TURNS):
+    enough = POLE_PAIR_MIN_TURNS if from_voltages else POLE_PAIR_MIN_ANGLE_TURNS
+    if not (math.isfinite(e) and math.isfinite(m)) or m == 0.0 or abs(e) / (2.0 * math.pi) < enough:
         return
     ratio = e / m
     if abs(ratio - pole_pairs) > POLE_PAIR_TOLERANCE * pole_pairs:

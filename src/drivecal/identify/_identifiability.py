@@ -298,17 +298,12 @@ def dead_time_advice(experiment: Experiment, motor: MotorParams) -> str:
     width = max(float(motor.i_dead), 1e-6)
     peak = float(np.max(np.abs(phases))) if phases.size else 0.0
     clear = np.abs(phases) > max(3.0 * width, 0.05 * peak)  # a sign that is not ripple around zero
-    new_segment = np.asarray(experiment.segment_start, dtype=bool)
+    segment = np.cumsum(np.asarray(experiment.segment_start, dtype=bool))
     reversals = 0
-    for x in range(3):
-        sign = np.where(clear[:, x], np.sign(phases[:, x]), 0.0)
-        last = 0.0
-        for k, s in enumerate(sign):
-            if new_segment[k]:
-                last = 0.0
-            if s != 0.0:
-                reversals += int(last != 0.0 and s != last)
-                last = s
+    for x in range(3):  # sign changes between successive clear samples of one segment
+        k = np.flatnonzero(clear[:, x])
+        sign = np.sign(phases[k, x])
+        reversals += int(np.sum((segment[k[1:]] == segment[k[:-1]]) & (sign[1:] != sign[:-1])))
     small = float(np.mean(np.abs(phases) < 3.0 * width)) if phases.size else 0.0
     near = f"{100 * small:.2g} % of the phase-current samples are within 3 i_dead ({3 * width:.3g} A) of zero"
     if not reversals:
