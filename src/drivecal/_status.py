@@ -66,6 +66,44 @@ class Status(enum.Enum):
         return self.label
 
 
+class Spec(enum.Enum):
+    """How one motor compares with its specification (the motor file's ``[tolerance]``), judged with
+    the 95 % intervals: the production line's pass/fail. Keys, labels, exit codes and messages as
+    :class:`Status`. "not calibrated" exits with the verdict's own code (:attr:`Status.exit_code`).
+    """
+
+    #: Every toleranced parameter's whole 95 % interval lies within its limits.
+    PASS = ("pass", "pass", 0, "every toleranced parameter lies within its limits, its whole 95 % interval included")
+    #: Some parameter's whole 95 % interval lies outside its limits.
+    FAIL = ("fail", "fail", 6, "out of specification: the 95 % interval of the named parameters lies outside "
+                               "their limits")
+    #: Some interval straddles a limit (or a toleranced parameter was not identified), none lies outside.
+    INCONCLUSIVE = ("inconclusive", "inconclusive", 7,
+                    "the data cannot decide: an interval straddles a limit; the advice says how many more samples "
+                    "or which plan change would decide")
+    #: The calibration itself did not succeed (not converged, or model mismatch): nothing to judge.
+    NOT_CALIBRATED = ("not_calibrated", "not calibrated", 1,
+                      "not judged: the calibration did not succeed (see its verdict); calibrate it again")
+    #: The bench file was refused.
+    INVALID = ("invalid", "invalid file", 2, "not judged: the bench file was refused (see the reason)")
+
+    def __new__(cls, key: str, label: str, exit_code: int, message: str):
+        obj = object.__new__(cls)
+        obj._value_ = key
+        obj.label = label
+        obj.exit_code = exit_code
+        obj.message = message
+        return obj
+
+    @property
+    def key(self) -> str:
+        """The result JSON's word for it (``spec.status``)."""
+        return self.value
+
+    def __str__(self) -> str:
+        return self.label
+
+
 # optimistix reports how a solve ended as an equinox enumeration item; drivecal keeps it as a plain integer
 # (it crosses vmap, numpy and the result JSON). equinox has no public integer or index -> message for its items,
 # so these two functions are the only code that reads its internals.

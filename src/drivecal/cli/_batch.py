@@ -53,7 +53,15 @@ def batch(inputs, out_path, motor_path, chunk, workers, scheduler, resume, measu
     with --resume and loses nothing. At the end every parameter is compared
     with the batch (robust z-score) and outliers are flagged.
 
+    With a [tolerance] table in the motor file every motor is judged against
+    it (column `spec`: pass, fail, inconclusive, not calibrated, invalid
+    file; `spec_failed` names the parameters).
+
+    \b
     Exit status: 0 all calibrated, 1 completed with failures, 2 bad input.
+    With a specification, the most serious first: 6 some motor failed it,
+    1 some motor not judged (not calibrated, invalid file), 7 some
+    inconclusive, 0 every motor passed.
     """
     if workers is not None and scheduler is not None:
         raise click.UsageError("give --workers (local processes) or --scheduler (a dask cluster), not both")
@@ -91,8 +99,8 @@ def batch(inputs, out_path, motor_path, chunk, workers, scheduler, resume, measu
         click.echo(json.dumps(summary.to_dict(), indent=2))
     else:
         _print_batch_summary(summary, console)
-    if summary.completed_with_failures:
-        raise SystemExit(EXIT_COMPLETED_WITH_FAILURES)
+    if summary.exit_code:
+        raise SystemExit(summary.exit_code)
 
 
 def _print_batch_summary(summary, console: Console) -> None:
@@ -101,6 +109,9 @@ def _print_batch_summary(summary, console: Console) -> None:
     console.print(f"{state}: {summary.total} motors in {summary.out} ({summary.done_before} from an earlier run); "
                   f"{summary.calibrated} calibrated, {summary.partial} partially, {summary.failed} failed "
                   f"(see the status and reason columns); {summary.seconds:.1f} s, {rate:.0f} motors/s")
+    if summary.spec is not None:
+        counts = ", ".join(f"{n} {label}" for label, n in summary.spec.items() if n)
+        console.print(f"specification: {counts} (see the spec and spec_failed columns)")
     if summary.outliers:
         console.print(f"fleet outliers ({len(summary.outliers)}): " + ", ".join(summary.outliers))
     if summary.mismatch:

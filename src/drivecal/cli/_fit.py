@@ -90,6 +90,11 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
       4  model mismatch suspected (the intervals are not to be trusted)
       5  not converged
       2  bad input (the file, an option or the motor file; one sentence on stderr)
+    With a [tolerance] table in the motor file, the specification's instead
+    (each parameter's whole 95 % interval against its limits):
+      0  pass     6  fail (the parameters are named)
+      7  inconclusive (an interval straddles a limit; the advice says what
+         would decide)     4, 5  not calibrated (the verdict's status)
     """
     if out_dir is not None:
         _check_out(out_dir, "--out", directory=True)
@@ -127,13 +132,14 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
         payload = build_result(cal, bench, experiment=experiment, noise_sigma=noise, input_path=bench_path,
                                motor_file=motor_path, measured_speed=measured_speed and bench.has_measured_speed,
                                saturation=saturation.to_dict() if saturation.tested else None,
-                               effects=selection.to_dict())
+                               effects=selection.to_dict(), tolerance=motor_file.tolerance)
         if out_dir is not None:
             written = _write_fit_outputs(cal, payload, out_dir)
     status = Status(payload["verdict"]["status"])
+    exit_code = _exit_code(status, payload.get("spec"))
     if as_json:
         click.echo(json.dumps(payload, indent=2))
-        return status.exit_code
+        return exit_code
     ident = cal.identifiability
     verdict = "[green]identifiable[/green]" if ident.identifiable else "[red]NOT fully identifiable[/red]"
     speed = "measured speed as input" if payload["measured_speed"] else "speed simulated from J and B"
@@ -151,9 +157,34 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
     for line in (payload["saturation"] or {}).get("findings", []):
         colour = "red" if "saturates" in line else "green"
         console.print(f"saturation check: [{colour}]{escape(line)}[/{colour}]")
+    if payload.get("spec"):
+        _print_spec(payload["spec"], console)
     if out_dir is not None:
         console.print(f"wrote {len(written)} files to {out_dir}/: " + ", ".join(p.name for p in written))
-    return status.exit_code
+    return exit_code
+
+
+def _exit_code(status, spec) -> int:
+    """The verdict's exit status, or with a specification the judgement's (not calibrated: the verdict's)."""
+    from ..results import Spec
+
+    if not spec or Spec(spec["status"]) is Spec.NOT_CALIBRATED:
+        return status.exit_code
+    return Spec(spec["status"]).exit_code
+
+
+def _print_spec(spec: dict, console) -> None:
+    """The judgement against the motor file's tolerances: the headline, a line per parameter, the advice."""
+    from rich.markup import escape
+
+    colour = {"pass": "green", "fail": "red"}.get(spec["status"], "yellow")
+    console.print(f"specification: [{colour}]{escape(spec['headline'])}[/{colour}]")
+    for p in spec["parameters"]:
+        low, high = p["ci95"]
+        interval = "not identified" if low is None else f"95 % CI [{_fmt(low)}, {_fmt(high)}]"
+        console.print(f"  {p['name']}: {p['outcome']} ({interval} {p['unit']}; tolerance {escape(p['tolerance'])})")
+    for line in spec["advice"]:
+        console.print(f"  [yellow]{escape(line)}[/yellow]")
 
 
 def _effects_line(selection) -> str:

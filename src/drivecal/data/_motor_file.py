@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from ..errors import DrivecalError
 from ..physics import DEFAULT_MOTOR, ESTIMABLE, ESTIMATED, MotorParams
+from ._tolerance import Tolerance, tolerances_of
 from .._units import StrictModel, explain, quantity, read_toml
 
 
@@ -63,6 +64,8 @@ class MotorFile(BaseModel):
         source: the file path, for messages.
         defaulted: the keys that matter (:data:`REQUIRED_KEYS`) the file left out, which took
             the default motor's values (the CLI warns about them).
+        tolerance: the specification of the ``[tolerance]`` table, ``{name: Tolerance}`` (limits in
+            SI; empty: no specification, no pass/fail).
     """
 
     model_config = ConfigDict(frozen=True, arbitrary_types_allowed=True)
@@ -71,6 +74,7 @@ class MotorFile(BaseModel):
     delay_samples: float = 0.0
     source: str = "default motor"
     defaulted: tuple[str, ...] = ()
+    tolerance: dict[str, Tolerance] = Field(default_factory=dict)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -92,10 +96,12 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
     if not data:
         raise DrivecalError(f"{source}: the motor file is empty; give at least {', '.join(REQUIRED_KEYS)} of the "
                             "motor (see examples/motor.toml), or leave out --motor to use the built-in demo motor.")
+    data = dict(data)
+    tolerance_table = data.pop("tolerance", None)
     try:
         spec = MotorSpec.model_validate(data)
     except ValidationError as exc:
-        raise explain(exc, source, "motor", ", ".join(MotorSpec.model_fields)) from None
+        raise explain(exc, source, "motor", ", ".join(MotorSpec.model_fields) + ", [tolerance]") from None
     if not 1 <= spec.pole_pairs <= 1000:
         shown = spec.pole_pairs if abs(spec.pole_pairs) < 10**12 else "a huge number"
         raise DrivecalError(f"{source}: 'pole_pairs' must be a whole number from 1 to 1000, got {shown}.")
@@ -116,8 +122,9 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
     if estimate is not None and not estimate:
         raise DrivecalError(f"{source}: 'estimate' is empty; list at least one of R, Ld, Lq, lambda_m.")
     defaulted = tuple(k for k in REQUIRED_KEYS if k not in data)
+    tolerance = {} if tolerance_table is None else tolerances_of(tolerance_table, motor.all_values(), source)
     return MotorFile(motor=motor, estimate=estimate, delay_samples=spec.delay_samples, source=source,
-                     defaulted=defaulted)
+                     defaulted=defaulted, tolerance=tolerance)
 
 
 def load_motor(path: str | Path | None) -> MotorFile:

@@ -44,8 +44,8 @@ from ..physics import ESTIMABLE
 from ._effects import select_for
 from ..model import model_experiment
 from ..data import MotorFile
-from ..results import Status, content_sha256, result_message
-from ._checks import DEFAULT_OUTLIER_Z, FLEET_COLUMNS, fleet_checks, residual_diagnostics
+from ..results import Spec, Status, content_sha256, result_message
+from ._checks import DEFAULT_OUTLIER_Z, FLEET_COLUMNS, fleet_checks, residual_diagnostics, spec_checks
 from ._inputs import discover, motors_in, prefetch as _prefetch, serial_of
 from ._runners import run_chunks, tune_if_dask_worker
 
@@ -256,6 +256,8 @@ class BatchSummary:
         outliers: serials flagged by the fleet check.
         mismatch: serials whose residuals suggest model mismatch.
         seconds: wall time of this run (s).
+        spec: with a specification (the motor file's ``[tolerance]``), the count of each
+            :class:`drivecal.results.Spec` label; else None.
     """
 
     out: Path
@@ -267,10 +269,25 @@ class BatchSummary:
     outliers: tuple[str, ...]
     mismatch: tuple[str, ...]
     seconds: float
+    spec: dict[str, int] | None = None
 
     @property
     def completed_with_failures(self) -> bool:
         return self.failed > 0
+
+    @property
+    def exit_code(self) -> int:
+        """The run's exit status, the most serious first: with a specification 6 (some motor failed it),
+        1 (some motor could not be judged: not calibrated or an invalid file), 7 (some inconclusive),
+        0 (all pass); without one 1 (completed with failures) or 0."""
+        if self.spec is None:
+            return 1 if self.completed_with_failures else 0
+        count = self.spec.get
+        if count(Spec.FAIL.label, 0):
+            return Spec.FAIL.exit_code
+        if count(Spec.NOT_CALIBRATED.label, 0) or count(Spec.INVALID.label, 0):
+            return 1
+        return Spec.INCONCLUSIVE.exit_code if count(Spec.INCONCLUSIVE.label, 0) else Spec.PASS.exit_code
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -433,6 +450,7 @@ def run_batch(
     table = table.assign(_order=table["file"].map(order).fillna(len(files))).sort_values(["_order", "file"],
                                                                                           kind="stable")
     table = fleet_checks(table.drop(columns="_order").reset_index(drop=True), outlier_z)
+    table = spec_checks(table, motor_file.tolerance)
     with atomic_path(out) as tmp:
         table.to_parquet(tmp, index=False)
     shutil.rmtree(parts, ignore_errors=True)
@@ -449,6 +467,7 @@ def run_batch(
         mismatch=tuple(table.loc[table.get("mismatch", pd.Series(False, index=table.index)).fillna(False)
                                  .astype(bool), "serial"].astype(str)),
         seconds=time.perf_counter() - t0,
+        spec=None if "spec" not in table else {s.label: int((table["spec"] == s.label).sum()) for s in Spec},
     )
 
 

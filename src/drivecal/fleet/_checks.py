@@ -15,13 +15,15 @@ import pandas as pd
 from .._stats import robust_z
 from ..diagnose import ljung_box, whiteness_rule
 from ..physics import ESTIMATED
-from ..results import Status
+from ..data import Tolerance
+from ..results import FAIL, INCONCLUSIVE, Spec, Status, judge_arrays
 
 #: Robust z-score beyond which a parameter marks a motor as an outlier.
 DEFAULT_OUTLIER_Z = 5.0
 
-#: The columns :func:`fleet_checks` adds (besides ``z_<name>``): a batch's rows before the check lack them.
-FLEET_COLUMNS = ("outlier", "outlier_params", "outlier_z")
+#: The columns :func:`fleet_checks` and :func:`spec_checks` add (besides ``z_<name>``): a batch's rows before
+#: the checks lack them.
+FLEET_COLUMNS = ("outlier", "outlier_params", "outlier_z", "spec", "spec_failed", "spec_inconclusive")
 
 
 def residual_diagnostics(residuals: np.ndarray, segment_start: np.ndarray) -> dict:
@@ -80,3 +82,41 @@ def outlier_z_of(table: pd.DataFrame) -> float:
     :data:`DEFAULT_OUTLIER_Z` for a table written before the column was recorded."""
     recorded = table["outlier_z"].dropna() if "outlier_z" in table else ()
     return float(recorded.iloc[0]) if len(recorded) else DEFAULT_OUTLIER_Z
+
+
+def spec_checks(table: pd.DataFrame, tolerance: dict[str, Tolerance]) -> pd.DataFrame:
+    """Add each motor's judgement against the specification (``drivecal.results.judge_spec``, vectorised).
+
+    ``spec`` is the :class:`drivecal.results.Spec` label: "pass", "fail", "inconclusive", "not calibrated"
+    (not converged, or residuals that suggest model mismatch: the intervals are not to be trusted) or
+    "invalid file"; ``spec_failed`` and ``spec_inconclusive`` list the parameters. A toleranced parameter
+    the batch did not estimate is inconclusive. Without tolerances the table is returned unchanged.
+    """
+    if not tolerance:
+        return table
+    out = table.copy()
+    k = len(out)
+    failed = np.full(k, "", dtype=object)
+    undecided = np.full(k, "", dtype=object)
+    any_fail, any_undecided = np.zeros(k, bool), np.zeros(k, bool)
+    for name, tol in tolerance.items():
+        if name in out:
+            columns = (out[name], out[f"{name}_ci_low"], out[f"{name}_ci_high"],
+                       out[f"{name}_identifiable"].fillna(False).astype(bool))
+            outcome, _ = judge_arrays(*(np.asarray(c, dtype=float) for c in columns[:3]), columns[3], tol)
+        else:
+            outcome = np.full(k, INCONCLUSIVE)
+        for flags, names, code in ((any_fail, failed, FAIL), (any_undecided, undecided, INCONCLUSIVE)):
+            hit = outcome == code
+            flags |= hit
+            names[hit] = [f"{n}, {name}" if n else name for n in names[hit]]
+    status = out["status"] if "status" in out else pd.Series(Status.INVALID.label, index=out.index)
+    mismatch = out["mismatch"].fillna(False).astype(bool) if "mismatch" in out else False
+    usable = status.isin([Status.CALIBRATED.label, Status.PARTIAL.label]) & ~mismatch
+    label = np.where(any_fail, Spec.FAIL.label, np.where(any_undecided, Spec.INCONCLUSIVE.label, Spec.PASS.label))
+    label = np.where(usable, label, np.where(status == Status.INVALID.label, Spec.INVALID.label,
+                                             Spec.NOT_CALIBRATED.label))
+    out["spec"] = label
+    out["spec_failed"] = np.where(usable, failed, "")
+    out["spec_inconclusive"] = np.where(usable, undecided, "")
+    return out

@@ -13,11 +13,11 @@ from typing import Any
 
 import numpy as np
 
-from ..data import BenchData
+from ..data import BenchData, Tolerance
 from ..diagnose import residual_checks, unmodelled_effects, verdict
 from ..model import Experiment, model_experiment, predicted_currents
 from ..plan import Plan, plan_to_dict
-from ..results import (NOT_RECORDED, Calibration, bench_sha256, file_sha256, result_document,
+from ..results import (NOT_RECORDED, Calibration, Status, bench_sha256, file_sha256, judge_spec, result_document,
                        segment_residuals)
 
 
@@ -67,6 +67,7 @@ def build_result(
     measured_speed: Any = NOT_RECORDED,
     saturation: Any = NOT_RECORDED,
     effects: Any = NOT_RECORDED,
+    tolerance: dict[str, Tolerance] | None = None,
 ) -> dict[str, Any]:
     """The full result JSON of one fit (a plain, JSON-ready dict).
 
@@ -84,6 +85,8 @@ def build_result(
         measured_speed: whether a measured speed drove the model (``drivecal fit`` records it).
         saturation: the saturation check's dict, or None (``drivecal fit`` records it).
         effects: the bench-effect selection's dict (``EffectSelection.to_dict()``; ``drivecal fit`` records it).
+        tolerance: the motor file's specification (``MotorFile.tolerance``): when given (non-empty) the
+            result's ``spec`` section judges the estimates against it (:func:`drivecal.results.judge_spec`).
     """
     segments = segment_traces(calibration, bench, experiment)
     stated = float(noise_sigma) if noise_sigma is not None else None
@@ -102,4 +105,7 @@ def build_result(
     return result_document(fit, segments=segments, residuals=residuals, verdict=judged,
                            plan=plan_to_dict(plan) if plan is not None else None, motor_file=motor_file,
                            input_sha256=input_sha256, input_path=input_path, measured_speed=measured_speed,
-                           saturation=saturation, effects=effects)
+                           saturation=saturation, effects=effects,
+                           spec=NOT_RECORDED if not tolerance else judge_spec(
+                               calibration.names, calibration.estimate, calibration.ci95, calibration.identifiable,
+                               tolerance, Status(judged["status"])).to_dict())

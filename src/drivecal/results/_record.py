@@ -93,7 +93,8 @@ def segment_residuals(segments: list[dict[str, Any]]) -> list[tuple[str, np.ndar
 def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], residuals: dict[str, Any],
                     verdict: dict[str, Any], plan: dict[str, Any] | None, motor_file: str | os.PathLike | None,
                     input_sha256: str, input_path: str | os.PathLike | None, measured_speed: Any = NOT_RECORDED,
-                    saturation: Any = NOT_RECORDED, effects: Any = NOT_RECORDED) -> dict[str, Any]:
+                    saturation: Any = NOT_RECORDED, effects: Any = NOT_RECORDED, spec: Any = NOT_RECORDED
+                    ) -> dict[str, Any]:
     """One fit's full result JSON from its parts (each already JSON-ready).
 
     Args:
@@ -109,6 +110,8 @@ def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], resi
         saturation: the saturation check's dict, or None (bench files only).
         effects: the bench-effect selection (``drivecal.selection.EffectSelection.to_dict()``):
             the mode, and per effect whether it was included, the evidence and the estimate.
+        spec: the judgement against the motor file's tolerances (``SpecJudgement.to_dict()``), recorded
+            only when the motor file has a ``[tolerance]`` table.
     """
     doc = dict(fit)
     doc["segments"] = segments
@@ -129,6 +132,8 @@ def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], resi
         doc["saturation"] = saturation
     if effects is not NOT_RECORDED:
         doc["effects"] = effects
+    if spec is not NOT_RECORDED:
+        doc["spec"] = spec
     return doc
 
 
@@ -436,6 +441,12 @@ def _validate_sections(c: _Check, d: dict, prefix: str) -> None:
         c.obj(e, f)
         c.string(e.get("effect"), f"{f}.effect")
         c.boolean(e.get("included"), f"{f}.included")
+    spec = c.obj(d.get("spec"), f"{prefix}spec", null=True) or {}
+    if spec:
+        c.string(spec.get("status"), f"{prefix}spec.status")
+        c.strings(spec.get("failed"), f"{prefix}spec.failed")
+        for i, p in enumerate(c.lst(spec.get("parameters"), f"{prefix}spec.parameters")):
+            c.string(c.obj(p, f"{prefix}spec.parameters[{i}]").get("outcome"), f"{prefix}spec.parameters[{i}].outcome")
     for n, t in (c.obj(d.get("truth"), f"{prefix}truth", null=True) or {}).items():
         c.num(c.obj(t, f"{prefix}truth.{_key(n)}").get("true"), f"{prefix}truth.{_key(n)}.true", null=False)
 
