@@ -202,3 +202,13 @@ def test_batch_writes_the_spec_column_and_exits_6_on_a_failed_motor(tmp_path, ca
     assert table.loc["SN000001", "spec_failed"] == "R"
     assert json.loads(out)["spec"] == {"pass": 2, "fail": 1, "inconclusive": 0, "not calibrated": 0,
                                        "invalid file": 0}
+
+
+def test_the_html_report_shows_the_judgement_and_the_advice():
+    from drivecal.report import spec_html
+
+    tol = {"R": Tolerance(None, 0.45, "R max")}
+    judged = judge_spec(("R",), np.array([0.44996]), np.array([[0.44988, 0.45004]]), [True], tol).to_dict()
+    page = spec_html({"spec": judged})
+    assert 'data-spec="inconclusive"' in page and "x the samples" in page and "R [ohm]" in page
+    assert spec_html({}) == ""

@@ -9,7 +9,8 @@ from ._firmware_loop import (MIN_PHASE_MARGIN, design_gains, loop_figures, loop_
 from ._gains import AXES, MAX_BANDWIDTH_FRACTION, SPECS, AxisGains, CurrentLoopDesign, Spread, design_current_loop
 from ._firmware import SQRT3, FirmwareConstant, FirmwareGains, firmware_gains, to_fixed
 from ._firmware_header import c_header
-from ._html import CSS, FIG_DPI, figure_data_uri, fit_section_html, render_html, verdict_html, write_html_report
+from ._html import CSS, FIG_DPI, figure_data_uri, fit_section_html, render_html, spec_html, verdict_html,
+                    write_html_report
 from ._record import build_result, segment_traces
 # drivecal 0.1's flat `drivecal.report` module (atomic output, the plan as JSON) and `drivecal.record`'s readers,
 # importable from here for one release; their homes are drivecal._io, drivecal.plan and drivecal.results.
@@ -22,4 +23,4 @@ __all__ = ["AXES", "AxisGains", "CSS", "CurrentLoopDesign", "FIG_DPI", "Firmware
            "c_header", "design_current_loop", "design_gains", "figure_data_uri", "firmware_gains", "fit_section_html",
            "load_result", "loop_figures", "loop_gain_for", "loop_metrics", "open_loop", "pi_gains", "plan_to_dict",
            "prepare_output_dir", "reachable", "render_html", "result_fits", "save_figure", "segment_traces",
-           "select_fit", "to_fixed", "verdict_html", "write_html_report", "write_json"]
+           "select_fit", "spec_html", "to_fixed", "verdict_html", "write_html_report", "write_json"]

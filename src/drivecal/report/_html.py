@@ -74,6 +74,25 @@ def verdict_html(fit: Mapping[str, Any]) -> str:
             f'Verdict: <b>{_e(v["headline"])}</b>{"<ul>" + items + "</ul>" if items else ""}</div>')
 
 
+def spec_html(fit: Mapping[str, Any]) -> str:
+    """The judgement against the motor file's tolerances (the result's ``spec``), '' when none was given."""
+    spec = fit.get("spec")
+    if not spec:
+        return ""
+    colour = {"pass": "calibrated", "fail": "failed"}.get(spec["status"], "partial")
+    rows = "".join(
+        f'<tr><td class="l">{_e(p["name"])} [{_e(p["unit"])}]</td><td class="l">{_e(p["outcome"])}</td>'
+        f'<td>{_fmt(p["estimate"])}</td><td class="l">[{_fmt(p["ci95"][0])}, {_fmt(p["ci95"][1])}]</td>'
+        f'<td class="l">{_e(p["tolerance"])}: {_fmt(p["low"])} .. {_fmt(p["high"])}</td></tr>'
+        for p in spec["parameters"])
+    head = ("<tr><th class='l'>parameter</th><th class='l'>outcome</th><th>estimate</th><th class='l'>95 % CI</th>"
+            "<th class='l'>tolerance: limits</th></tr>")
+    advice = "".join(f"<li>{_e(a)}</li>" for a in spec["advice"])
+    return (f'<div class="verdict {colour}" data-spec="{_e(spec["status"])}">Specification: '
+            f'<b>{_e(spec["headline"])}</b>{"<ul>" + advice + "</ul>" if advice else ""}</div>'
+            + (f'<table class="spec">{head}{rows}</table>' if rows else ""))
+
+
 def _kv_table(rows: list[tuple[str, Any]], cls: str = "kv") -> str:
     body = "".join(f'<tr><th class="l">{_e(k)}</th><td class="l">{_e(v)}</td></tr>' for k, v in rows)
     return f'<table class="{cls}">{body}</table>'
@@ -162,7 +181,7 @@ def fit_section_html(fit: Mapping[str, Any], label: str, anchor: str) -> str:
     prov += [(f"{k} version", v) for k, v in versions.items()]
     return (
         f'<section class="fit" id="{_e(anchor)}"><h2>{_e(label)}</h2>'
-        f"{verdict_html(fit)}"
+        f"{verdict_html(fit)}{spec_html(fit)}"
         f"<h3>Summary</h3>{summary_html(fit)}"
         f"<h3>Fit statistics</h3>{_statistics_html(fit)}"
         f"<h3>Figures</h3>{figs}"
