@@ -114,7 +114,7 @@ def tolerance_of(name: str, value: Any, nominal: float, source: str = "motor") -
         high = _limit(value["max"], name, source, "max") if "max" in value else None
         if low is not None and high is not None and not low < high:
             raise DrivecalError(f"{source}: tolerance '{name}': min ({low:g}) must be below max ({high:g}).")
-        text = " .. ".join(str(value[k]) if k in value else "" for k in ("min", "max"))
+        text = ", ".join(f"{k} {value[k]}" for k in ("min", "max") if k in value)
         return Tolerance(low, high, text)
     if isinstance(value, list):
         if len(value) != 2:
