@@ -212,3 +212,11 @@ def test_the_html_report_shows_the_judgement_and_the_advice():
     page = spec_html({"spec": judged})
     assert 'data-spec="inconclusive"' in page and "x the samples" in page and "R [ohm]" in page
     assert spec_html({}) == ""
+
+
+def test_the_example_spec_motor_file_passes_the_example_bench(capsys):
+    code, err, out = run_cli_output(["fit", EXAMPLES / "bench.csv", "--motor", EXAMPLES / "motor_spec.toml", "--json"],
+                                    capsys)
+    spec = json.loads(out)["spec"]
+    assert code == 0 and spec["status"] == "pass", err
+    assert [p["name"] for p in spec["parameters"]] == ["R", "Ld", "Lq", "lambda_m"]
