@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
 import numpy as np
-from pydantic import AfterValidator, Discriminator, Tag, ValidationError
+from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError
 
 from . import _waveforms as waveforms
 from ..errors import DrivecalError
@@ -116,6 +116,8 @@ class SegmentSpec(StrictModel):
     v_d: Axis = 0.0
     v_q: Axis = 0.0
     temperature: quantity("temperature") | None = None
+    continues: bool = Field(default=False, alias="continue")
+    inverter: Literal["on", "off"] = "on"
 
 
 class PlanSpec(StrictModel):
@@ -242,7 +244,8 @@ def plan_from_dict(data: dict, source: str = "plan", base: Path | None = None) -
     try:
         spec = PlanSpec.model_validate(data)
     except ValidationError as exc:
-        keys = ", ".join(PlanSpec.model_fields) + " (per [[segment]]: " + ", ".join(SegmentSpec.model_fields) + ")"
+        keys = ", ".join(PlanSpec.model_fields) + " (per [[segment]]: " + ", ".join(
+            f.alias or n for n, f in SegmentSpec.model_fields.items()) + ")"
         raise explain(exc, source, "plan", keys) from None
     counts = _check_spec(spec, source)
     base = base or Path(".")
@@ -250,7 +253,8 @@ def plan_from_dict(data: dict, source: str = "plan", base: Path | None = None) -
     for i, (s, n) in enumerate(zip(spec.segment, counts)):
         v_d = _axis(s.v_d, n, spec.sample_rate, base, f"{source}: segment[{i}].v_d")
         v_q = _axis(s.v_q, n, spec.sample_rate, base, f"{source}: segment[{i}].v_q")
-        segments.append(Segment(s.name, s.duration, s.locked, v_d=v_d, v_q=v_q, temperature=s.temperature))
+        segments.append(Segment(s.name, s.duration, s.locked, v_d=v_d, v_q=v_q, temperature=s.temperature,
+                                continues=s.continues, inverter=s.inverter))
     plan = Plan(tuple(segments), sample_rate=spec.sample_rate, v_dc=spec.v_dc, current_limit=spec.current_limit,
                 max_speed=spec.max_speed)
     try:
@@ -305,6 +309,10 @@ def plan_toml(plan: Plan, waveforms_spec: dict[tuple[str, str], dict] | None = N
                   f"duration = {_toml_value(float(seg.duration))}    # s", f"locked = {_toml_value(bool(seg.locked))}"]
         if seg.temperature is not None:
             lines.append(f"temperature = {_toml_value(float(seg.temperature))}    # degC")
+        if seg.continues:
+            lines.append("continue = true    # starts where the previous segment ended")
+        if seg.inverter != "on":
+            lines.append(f"inverter = {_toml_value(seg.inverter)}    # switches open: no current, the rotor coasts")
         tables = []
         for axis in ("v_d", "v_q"):
             value = getattr(seg, axis)
@@ -339,6 +347,10 @@ def plan_to_dict(plan: Plan) -> dict[str, Any]:
         entry = {"name": seg.name, "duration": seg.duration, "locked": seg.locked}
         if seg.temperature is not None:
             entry["temperature"] = float(seg.temperature)
+        if seg.continues:
+            entry["continue"] = True
+        if seg.inverter != "on":
+            entry["inverter"] = seg.inverter
         for axis in ("v_d", "v_q"):
             value = getattr(seg, axis)
             entry[axis] = float(value) if not hasattr(value, "__len__") else [float(v) for v in value]

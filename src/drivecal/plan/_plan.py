@@ -1,9 +1,13 @@
 """Bench plans: segments of applied dq voltage, and their feasibility.
 
 A plan is a list of segments run one after another on the bench, each from
-rest. In a segment the rotor is either locked (standstill test: R, Ld, Lq) or
-free (spin-up: the only place lambda_m shows). Voltages are commanded per
-sample and held between samples, which is what an inverter's PWM does.
+rest unless it continues the one before (``continues``: a coast-down after a
+spin-up starts at the speed the spin-up reached). In a segment the rotor is
+either locked (standstill test: R, Ld, Lq) or free (spin-up: the only place
+lambda_m shows; a coast-down: J and the friction). Voltages are commanded per
+sample and held between samples, which is what an inverter's PWM does; with
+the inverter off (``inverter = "off"``) its switches are open, no current
+flows and the rotor coasts on its friction alone.
 """
 
 from __future__ import annotations
@@ -33,6 +37,13 @@ class Segment:
             value per sample, value k applied on ``[t_k, t_k+1)``.
         temperature: winding temperature during the segment (degC), or None
             when not controlled; R follows it (``motor.resistance_at``).
+        continues: the segment starts where the previous one ended (currents,
+            speed, angle and the delayed command carry over) instead of from rest;
+            its first sample is one sample period after the previous one's last.
+        inverter: "on" (the voltages are applied) or "off": the bridge's switches
+            are open, no current flows (the back-EMF must stay inside the DC link:
+            checked where the motor is known) and a free rotor coasts down on its
+            friction; the voltages are then 0 (not applied).
     """
 
     name: str
@@ -41,6 +52,8 @@ class Segment:
     v_d: Voltage = 0.0
     v_q: Voltage = 0.0
     temperature: float | None = None
+    continues: bool = False
+    inverter: str = "on"
 
     def num_samples(self, sample_rate: float) -> int:
         """Number of samples ``round(duration * sample_rate)``."""
@@ -73,7 +86,7 @@ class Plan:
     """A bench experiment: segments run in order at one sample rate.
 
     Attributes:
-        segments: the segments, each starting from rest.
+        segments: the segments, each starting from rest or continuing the previous one.
         sample_rate: current sampling (and voltage update) rate (Hz).
         v_dc: DC-link voltage (V); the inverter reaches ``|v_dq| <= v_dc / sqrt(3)``.
         current_limit: the bench's peak phase-current limit (A).
@@ -106,8 +119,10 @@ class Plan:
         """Raise :class:`PlanError` naming the first infeasible segment; return self otherwise.
 
         Checks: positive sample rate and V_dc, at least one segment, unique names,
-        at least two samples per segment, finite voltages, and every commanded
-        ``|v_dq|`` inside the voltage circle ``v_dc / sqrt(3)``.
+        at least two samples per segment, finite voltages, every commanded
+        ``|v_dq|`` inside the voltage circle ``v_dc / sqrt(3)``, a first segment
+        that does not continue another, and inverter-off segments that continue
+        a segment of the same rotor condition, with no voltage commanded.
         """
         if not (self.sample_rate > 0 and math.isfinite(self.sample_rate)):
             raise PlanError(f"sample_rate must be a positive number of Hz, got {self.sample_rate!r}.")
@@ -119,7 +134,8 @@ class Plan:
         if len(set(names)) != len(names):
             raise PlanError(f"segment names must be unique, got {names}.")
         limit = self.voltage_limit
-        for seg in self.segments:
+        for k, seg in enumerate(self.segments):
+            _check_sequence(seg, self.segments[k - 1] if k else None)
             n = seg.num_samples(self.sample_rate)
             if n < 2:
                 raise PlanError(
@@ -137,6 +153,25 @@ class Plan:
                     f"outside the voltage circle v_dc/sqrt(3) = {limit:.2f} V; lower the amplitude or raise v_dc."
                 )
         return self
+
+
+def _check_sequence(seg: Segment, previous: Segment | None) -> None:
+    """A continuing or inverter-off segment where one can be: refused naming the segment and the fix."""
+    if seg.inverter not in ("on", "off"):
+        raise PlanError(f"segment '{seg.name}': inverter must be \"on\" or \"off\", got {seg.inverter!r}.")
+    if seg.continues and previous is None:
+        raise PlanError(f"segment '{seg.name}': the first segment cannot continue another; remove continue = true.")
+    if seg.continues and seg.locked != previous.locked:
+        raise PlanError(f"segment '{seg.name}' continues '{previous.name}' but one is locked and the other free; "
+                        "a rotor cannot be clamped or released without stopping: start it from rest "
+                        "(continue = false).")
+    if seg.inverter == "off":
+        if not seg.continues or seg.locked:
+            raise PlanError(f"segment '{seg.name}': with the inverter off nothing moves unless the segment continues "
+                            "a free one (a coast-down): set locked = false and continue = true after a spin-up.")
+        if np.any(np.asarray(seg.v_d) != 0) or np.any(np.asarray(seg.v_q) != 0):
+            raise PlanError(f"segment '{seg.name}': the inverter is off, so no voltage is applied; remove v_d and v_q "
+                            "(or set inverter = \"on\" and v_d = v_q = 0 for short-circuit braking).")
 
 
 def default_plan() -> Plan:
