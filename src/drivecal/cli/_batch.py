@@ -7,8 +7,8 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ._common import (EXIT_COMPLETED_WITH_FAILURES, _check_out, _console, _format_option, _load_motor, _motor_option,
-                      _Positive)
+from ._common import (EXIT_CLUSTER_LOST, _check_out, _console, _format_option,
+                      _load_motor, _motor_option, _Positive, _warn)
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -25,7 +25,11 @@ if TYPE_CHECKING:
               help="Local helper processes, one per core (default: this machine's cores, at most one per "
                    "chunk; 1: everything in this process).")
 @click.option("--scheduler", default=None, metavar="ADDRESS",
-              help="Send chunks to a running dask.distributed scheduler, e.g. tcp://10.0.0.5:8786.")
+              help="Send chunks to a running dask.distributed scheduler, e.g. tls://10.0.0.5:8786 (TLS "
+                   "certificates from dask's configuration; see docs/cluster.md).")
+@click.option("--reconnect", type=click.FloatRange(min=0), default=0.0, metavar="SECONDS",
+              help="With --scheduler: when the scheduler (or every worker) is lost, wait up to SECONDS for it to "
+                   "come back and go on. Default 0: stop at once, exit status 8.")
 @click.option("--resume", is_flag=True, help="Continue an interrupted run of the same --out: skip motors already done.")
 @click.option("--measured-speed/--simulated-speed", default=True, show_default=True,
               help="Use a measured w_m as an input on free segments (see `drivecal fit --help`).")
@@ -36,8 +40,8 @@ if TYPE_CHECKING:
                    "whose residuals are not white are fitted again with the effects the data support.")
 @_format_option
 @click.option("--json", "as_json", is_flag=True, help="Print the run summary as JSON on stdout; no progress bar.")
-def batch(inputs, out_path, motor_path, chunk, workers, scheduler, resume, measured_speed, outlier_z, effects,
-          format_path, as_json):
+def batch(inputs, out_path, motor_path, chunk, workers, scheduler, reconnect, resume, measured_speed, outlier_z,
+          effects, format_path, as_json):
     """Calibrate many motors: one bench file per motor, one results table.
 
     \b
@@ -58,16 +62,24 @@ def batch(inputs, out_path, motor_path, chunk, workers, scheduler, resume, measu
     file; `spec_failed` names the parameters).
 
     \b
-    Exit status: 0 all calibrated, 1 completed with failures, 2 bad input.
+    Exit status: 0 all calibrated, 1 completed with failures, 2 bad input,
+    8 the dask cluster was lost or could not be reached (the sentence says
+    how many motors are saved; restart it, then run again with --resume).
     With a specification, the most serious first: 6 some motor failed it,
     1 some motor not judged (not calibrated, invalid file), 7 some
     inconclusive, 0 every motor passed.
     """
     if workers is not None and scheduler is not None:
         raise click.UsageError("give --workers (local processes) or --scheduler (a dask cluster), not both")
+    if reconnect and scheduler is None:
+        raise click.UsageError("--reconnect waits for a dask cluster: give its address with --scheduler")
+    if scheduler is not None and _in_the_clear(scheduler):
+        _warn(f"--scheduler {scheduler}: plain TCP is neither encrypted nor authenticated, and a dask scheduler "
+              "runs whatever code it is sent; use its tls:// address (docs/cluster.md).")
     _check_out(out_path, "--out", example="out/results.parquet")
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+    from ..errors import ClusterLost
     from ..fleet import run_batch, tune_for_batch
     from ..selection import parse_effects
 
@@ -92,9 +104,17 @@ def batch(inputs, out_path, motor_path, chunk, workers, scheduler, resume, measu
             rate = (done - started["done"]) / elapsed if elapsed > 0 else 0.0
             bar.update(task, completed=done, total=total, rate=rate)
 
-        summary = run_batch(inputs, out_path, motor_file, chunk=chunk, workers=workers,
-                            scheduler=scheduler, resume=resume, measured_speed=measured_speed,
-                            outlier_z=outlier_z, progress=progress, effects=chosen, format=format_path)
+        try:
+            summary = run_batch(inputs, out_path, motor_file, chunk=chunk, workers=workers, scheduler=scheduler,
+                                reconnect=reconnect, resume=resume, measured_speed=measured_speed,
+                                outlier_z=outlier_z, progress=progress, effects=chosen, format=format_path)
+        except ClusterLost as exc:  # after the bar is gone: one sentence, its own exit status
+            lost = exc
+        else:
+            lost = None
+    if lost is not None:
+        click.echo(f"drivecal: error: {lost}", err=True)
+        raise SystemExit(EXIT_CLUSTER_LOST)
     if as_json:
         click.echo(json.dumps(summary.to_dict(), indent=2))
     else:
@@ -116,3 +136,19 @@ def _print_batch_summary(summary, console: Console) -> None:
         console.print(f"fleet outliers ({len(summary.outliers)}): " + ", ".join(summary.outliers))
     if summary.mismatch:
         console.print(f"model mismatch suspected ({len(summary.mismatch)}): " + ", ".join(summary.mismatch))
+
+
+def _in_the_clear(scheduler: str) -> bool:
+    """Whether ``scheduler`` is a plain-TCP address of another machine (not TLS, not this machine's loopback)."""
+    import ipaddress
+
+    scheme, _, rest = scheduler.rpartition("://")
+    if scheme not in ("", "tcp"):
+        return False
+    host = rest.rsplit(":", 1)[0].strip("[]") if ":" in rest else rest
+    if host == "localhost":
+        return False
+    try:
+        return not ipaddress.ip_address(host).is_loopback
+    except ValueError:  # a host name
+        return True

@@ -30,6 +30,9 @@ if TYPE_CHECKING:
 #: `drivecal fit` exits with its verdict's `Status.exit_code` (0 only when calibrated).
 EXIT_BAD_INPUT = Status.INVALID.exit_code
 EXIT_COMPLETED_WITH_FAILURES = 1
+#: `batch` stopped because its dask cluster was lost (the scheduler, or every worker) or could not be reached:
+#: the run is not finished; the motors saved so far are kept for --resume.
+EXIT_CLUSTER_LOST = 8
 
 #: name -> (module in this package, command object in it, the first paragraph of its help).
 #: The summary is what ``drivecal --help`` lists without importing the module; a test checks

@@ -36,7 +36,7 @@ from .._io import atomic_path
 from .._stats import next_power_of_two
 from ..data import BenchData, BenchFormat, benches_from_frames, is_log, load_format, read_columns, read_table
 from ..data import stacked_experiment
-from ..errors import DrivecalError
+from ..errors import ClusterLost, DrivecalError
 from ..fitting import fit_currents
 from ..identify import check_requested
 from ..diagnose import EFFECTS
@@ -47,6 +47,7 @@ from ..data import MotorFile
 from ..results import Spec, Status, content_sha256, result_message
 from ._checks import DEFAULT_OUTLIER_Z, FLEET_COLUMNS, fleet_checks, residual_diagnostics, spec_checks
 from ._inputs import discover, motors_in, prefetch as _prefetch, serial_of
+from ._cluster import stopped
 from ._runners import run_chunks, tune_if_dask_worker
 
 # The fleet table's status words as constants: aliases of the ``Status`` labels, kept for one release
@@ -373,6 +374,7 @@ def run_batch(
     chunk: int = 256,
     workers: int | None = None,
     scheduler: str | None = None,
+    reconnect: float = 0.0,
     resume: bool = False,
     measured_speed: bool = True,
     outlier_z: float = DEFAULT_OUTLIER_Z,
@@ -390,8 +392,11 @@ def run_batch(
         workers: local helper processes, each pinned to a core of its own when
             there are enough (default: this process's cores, at most one per
             chunk); 1 runs everything in this process.
-        scheduler: address of a running dask scheduler (``tcp://host:8786``);
-            chunks go to its workers instead.
+        scheduler: address of a running dask scheduler (``tls://host:8786``, its certificates from dask's
+            configuration; or ``tcp://host:8786``); chunks go to its workers instead. Losing it, or every
+            worker, raises :class:`drivecal.errors.ClusterLost` (what was lost, the motors saved, the fix).
+        reconnect: seconds to wait for a lost scheduler (or every worker) to come back before giving up
+            (0: give up at once; workers are always given 10 s).
         resume: keep the rows of an earlier, interrupted run of the same
             ``out`` and calibrate only the files not yet in it.
         measured_speed: use a measured ``w_m`` as input (see ``BenchData.experiment``).
@@ -409,7 +414,8 @@ def run_batch(
     if chunk < 1:
         raise DrivecalError(f"--chunk {chunk}: give a positive number of motors per chunk.")
     parts = parts_dir(out)
-    if not resume and (out.exists() or parts.exists()):
+    saved_parts = parts.exists() and (not parts.is_dir() or any(parts.iterdir()))  # an empty parts/ holds nothing
+    if not resume and (out.exists() or saved_parts):
         raise DrivecalError(
             f"--out {out}: results of an earlier run exist; pass --resume to continue it, or remove "
             f"{out.name} (and {parts.name}/) to start again."
@@ -424,13 +430,13 @@ def run_batch(
     # last chunk would load (or compile) a kernel of its own.
     size = math.ceil(len(todo) / math.ceil(len(todo) / chunk)) if todo else chunk
     chunks = [todo[i : i + size] for i in range(0, len(todo), size)]
-    parts.mkdir(parents=True, exist_ok=True)
     # Parts are numbered past every existing one: chunks finish out of order, so an interrupted run
     # can leave gaps, and numbering by count would overwrite a saved part.
     numbers = [p.stem.removeprefix("part-") for p in parts.glob("part-*.parquet")]
     first_part = max((int(n) for n in numbers if n.isdigit()), default=-1) + 1
 
     def save(k: int, table: pd.DataFrame) -> None:
+        parts.mkdir(parents=True, exist_ok=True)  # made by the first part: nothing is left when nothing is saved
         with atomic_path(parts / f"part-{first_part + k:06d}.parquet") as tmp:
             table.to_parquet(tmp, index=False)
 
@@ -439,11 +445,14 @@ def run_batch(
     fresh = []
     calibrate = functools.partial(calibrate_files, motor_file=motor_file, chunk=chunk, measured_speed=measured_speed,
                                   effects=effects, format=fmt)
-    for k, table in run_chunks(chunks, calibrate, workers, scheduler):
-        save(k, table)
-        fresh.append(table)
-        finished += len(table)
-        progress(finished, len(files))
+    try:
+        for k, table in run_chunks(chunks, calibrate, workers, scheduler, reconnect):
+            save(k, table)
+            fresh.append(table)
+            finished += len(table)
+            progress(finished, len(files))
+    except ClusterLost as exc:  # the sentence says how many motors are saved, and where
+        raise stopped(exc, finished, len(files), f"{parts}/" if parts.is_dir() else str(out)) from None
 
     table = _combine([done] + fresh)  # the earlier runs' rows and this run's (as saved in the parts)
     order = {f: i for i, f in enumerate(files)}

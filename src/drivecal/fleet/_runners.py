@@ -4,8 +4,9 @@ A batch process is tuned once for the long run (:func:`tune_for_batch`). Local
 helpers take chunks from one queue, each pinned to a core of its own when there
 are enough; they are forked while JAX has not started in this process, else
 spawned, and die with it. A dask scheduler's workers are tuned on their first
-chunk. The chunks' work itself (``calibrate``) is handed in: this module knows
-nothing of bench files or fits.
+chunk; reaching the cluster, and noticing its loss, is ``_cluster``'s. The
+chunks' work itself (``calibrate``) is handed in: this module knows nothing of
+bench files or fits.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import os
 import sys
 from typing import TYPE_CHECKING, Callable, Iterable
 
-from ..errors import DrivecalError
+from ._cluster import on_dask
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -95,15 +96,18 @@ def run_chunks(
     calibrate: Callable[[list[str]], pd.DataFrame],
     workers: int | None,
     scheduler: str | None,
+    reconnect: float = 0.0,
 ) -> Iterable[tuple[int, pd.DataFrame]]:
     """Yield ``(chunk index, calibrate(chunk))`` as chunks finish: here, in local helpers, or on dask workers.
 
     ``calibrate`` must pickle (a module-level function, or a ``functools.partial`` of one) to run elsewhere.
+    On a dask cluster (``scheduler``), :class:`drivecal.errors.ClusterLost` ends the run when the scheduler
+    or every worker is lost and does not come back within ``reconnect`` seconds (``_cluster.on_dask``).
     """
     if not chunks:
         return
     if scheduler is not None:
-        yield from _on_dask(chunks, calibrate, scheduler)
+        yield from on_dask(chunks, calibrate, scheduler, reconnect)
         return
     workers = min(workers or len(_allowed_cores()) or os.cpu_count() or 1, len(chunks))
     if workers <= 1:
@@ -197,19 +201,3 @@ def _worker_started(cores: tuple[int, ...] = (), started=None) -> None:
     except (OSError, AttributeError):  # not Linux
         pass
     tune_for_batch()  # a forked helper inherits this process's tuning (frozen objects, malloc settings): no-op
-
-
-def _on_dask(chunks: list[list[str]], calibrate: Callable, scheduler: str) -> Iterable[tuple[int, pd.DataFrame]]:
-    """Send every chunk to the workers of a running dask scheduler; yield them as they finish."""
-    from distributed import Client, as_completed
-
-    try:
-        client = Client(scheduler, timeout="10s")
-    except OSError as exc:
-        raise DrivecalError(f"--scheduler {scheduler}: cannot connect ({exc}); start it with "
-                            "`dask scheduler` and check the address.") from None
-    with client:
-        futures = {client.submit(calibrate, paths, pure=False): k for k, paths in enumerate(chunks)}
-        for future in as_completed(futures):
-            yield futures[future], future.result()
-
