@@ -202,6 +202,12 @@ def test_batch_writes_the_spec_column_and_exits_6_on_a_failed_motor(tmp_path, ca
     assert table.loc["SN000001", "spec_failed"] == "R"
     assert json.loads(out)["spec"] == {"pass": 2, "fail": 1, "inconclusive": 0, "not calibrated": 0,
                                        "invalid file": 0}
+    # when each bench file was written: the fleet report's trends may follow it
+    assert str(table["tested_at"].dtype) == "datetime64[ns, UTC]" and table["tested_at"].notna().all()
+    code, err, _ = run_cli_output(["fleet-report", tmp_path / "r.parquet", "--html", tmp_path / "f.html", "--motor",
+                                   motor, "--trend-by", "tested_at"], capsys)
+    page = (tmp_path / "f.html").read_text()
+    assert code == 0 and "SN000001" in page and "Pass/fail against the specification" in page, err
 
 
 def test_the_html_report_shows_the_judgement_and_the_advice():

@@ -68,6 +68,7 @@ class _Loaded:
     sha256: str
     bench: BenchData | None
     reason: str | None
+    tested_at: float = float("nan")  # the file's modification time (s since the epoch): when the bench wrote it
 
 
 def _load(paths: Sequence[str], motor_file: MotorFile, fmt: BenchFormat | None = None) -> list[_Loaded]:
@@ -79,10 +80,12 @@ def _load(paths: Sequence[str], motor_file: MotorFile, fmt: BenchFormat | None =
     """
     _prefetch(paths)
     read: list[tuple[str, str, str, Any]] = []  # path, serial, sha256, columns or the reason they are missing
+    written: dict[str, float] = {}
     for path in paths:
         sha, serial = "", Path(path).stem
         try:
             content = Path(path).read_bytes()  # read once: hashed and parsed
+            written[path] = os.stat(path).st_mtime
             sha = content_sha256(content)
             plain = fmt is None and not is_log(Path(path))
             columns = read_table(Path(path), content) if plain else read_columns(Path(path), fmt, content)
@@ -98,7 +101,8 @@ def _load(paths: Sequence[str], motor_file: MotorFile, fmt: BenchFormat | None =
     for path, serial, sha, columns in read:
         result = columns if isinstance(columns, str) else next(checked)
         bench = result if isinstance(result, BenchData) else None
-        loaded.append(_Loaded(path, serial, sha, bench, None if bench is not None else str(result)))
+        loaded.append(_Loaded(path, serial, sha, bench, None if bench is not None else str(result),
+                              written.get(path, float("nan"))))
     return loaded
 
 
@@ -122,8 +126,14 @@ def _bucket(n: int, chunk: int) -> int:
 
 
 def _failed_row(item: _Loaded, status: Status, reason: str) -> dict[str, Any]:
-    return {"serial": item.serial, "file": item.path, "file_sha256": item.sha256, "status": status.label,
-            "reason": reason, "converged": False}
+    return {"serial": item.serial, "file": item.path, "file_sha256": item.sha256,
+            "tested_at": _tested_at([item])[0], "status": status.label, "reason": reason, "converged": False}
+
+
+def _tested_at(items: list[_Loaded]) -> pd.Series:
+    """When each motor's bench file was written (its modification time, UTC; NaT where unknown): the
+    fleet report's trends may follow it (``fleet-report --trend-by tested_at``)."""
+    return pd.to_datetime(pd.Series([it.tested_at for it in items], dtype=float), unit="s", utc=True)
 
 
 def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool, chunk: int,
@@ -150,7 +160,7 @@ def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool
     # Columns for the whole chunk at once, not a Calibration and a dict per motor.
     columns: dict[str, Any] = {
         "serial": [it.serial for it in items], "file": [it.path for it in items],
-        "file_sha256": [it.sha256 for it in items],
+        "file_sha256": [it.sha256 for it in items], "tested_at": _tested_at(items).array,
         "status": np.where(converged, (Status.PARTIAL if partial else Status.CALIBRATED).label,
                            Status.NOT_CONVERGED.label),
         "reason": [(reason_partial if partial else "") if ok else m for ok, m in zip(converged, messages)],
