@@ -35,11 +35,14 @@ _UNITS = {
     "torque": ("N*m", "Nm", "N m"),
     "temperature": ("degC", "°C", "C"),
     "temperature coefficient": ("1/K",),
+    "rotor angle": ("rad",),
 }
+#: Units that are no prefix of a base unit, by quantity: their factor to SI.
+_SCALED = {"rotor angle": {"deg": math.pi / 180.0, "°": math.pi / 180.0}}
 _EXAMPLE = {"time": "10 ms", "frequency": "20 kHz", "voltage": "8 V", "current": "30 A", "resistance": "0.45 ohm",
             "inductance": "3.2 mH", "flux": "0.0533 Wb", "inertia": "1.2e-3 kg*m^2", "friction": "8e-5 N*m*s",
             "speed": "300 rad/s", "torque": "0.1 N*m", "temperature": "75 degC",
-            "temperature coefficient": "3.93e-3 1/K"}
+            "temperature coefficient": "3.93e-3 1/K", "rotor angle": "20 deg"}
 _NUMBER_UNIT = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$")
 
 
@@ -64,6 +67,8 @@ def parse_quantity(value: Any, quantity: str) -> float:
     number, unit = float(match.group(1)), match.group(2)
     if unit == "":
         return _finite(number, value, quantity)
+    if unit in _SCALED.get(quantity, {}):
+        return _finite(number * _SCALED[quantity][unit], value, quantity)
     for base in _UNITS[quantity]:
         if unit.endswith(base) and unit[: -len(base)] in _PREFIXES:
             return _finite(number * _PREFIXES[unit[: -len(base)]], value, quantity)

@@ -19,7 +19,8 @@ import numpy as np
 
 from ..data import BenchData, SegmentData
 from ..errors import PlanError
-from ..physics import MotorParams, coulomb_friction, dead_time_error, delayed, resistance_at, sensor_offsets
+from ..physics import (MotorParams, coulomb_friction, dead_time_error, delayed, encoder_frame, resistance_at,
+                       rotor_frame, sensor_offsets)
 from ..plan import Plan, Segment
 
 #: Engine tolerances: tight enough that the bench is exact to ~1e-9 A.
@@ -56,7 +57,9 @@ def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float,
     The bench effects of ``motor`` act as on a real bench: R at the segment's
     winding temperature, the inverter's dead-time error fed back from the
     block's currents and angle, the commands applied ``delay_samples`` late,
-    Coulomb friction fed back from the block's speed to its load port.
+    Coulomb friction fed back from the block's speed to its load port, the
+    commands (in the drive's frame, at its encoder's angle) turned into the
+    rotor frame by ``encoder_offset`` (``physics.rotor_frame``).
     A fractional delay (0.5, 1.5: the PWM loads its duty mid-period) runs the
     engine on a grid ``k`` times finer, each command held for ``k`` of its
     steps and applied ``delay * k`` of them late; the states are read back
@@ -75,7 +78,10 @@ def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float,
     dead = None
     if float(motor.v_dead) != 0.0:
         dead = (float(motor.pole_pairs), float(motor.v_dead), float(motor.i_dead))
-    volts = np.ascontiguousarray(delayed(segment.voltages(sample_rate), delay_samples), dtype=float)
+    commands = segment.voltages(sample_rate)
+    if float(motor.encoder_offset) != 0.0:
+        commands = np.stack(rotor_frame(commands[:, 0], commands[:, 1], float(motor.encoder_offset), xp=np), axis=1)
+    volts = np.ascontiguousarray(delayed(commands, delay_samples), dtype=float)
     friction = None
     if float(motor.T_coulomb) != 0.0 and not segment.locked:
         friction = (float(motor.T_load), float(motor.T_coulomb), float(motor.w_coulomb))
@@ -221,13 +227,21 @@ def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
 
     The bench effects set in ``motor`` are part of the truth: dead time
     (``v_dead``), sensor offsets (``offset_*``, added to the recorded
-    currents), R at each segment's ``temperature`` (recorded too).
+    currents), R at each segment's ``temperature`` (recorded too), and an
+    encoder whose zero is ``encoder_offset`` (rad, electrical) off the d axis:
+    the drive works in its encoder's frame, so the plan's voltages are its
+    commands there (the motor receives them turned by ``+encoder_offset``),
+    the recorded currents are the motor's turned by ``-encoder_offset``
+    (``physics.encoder_frame``), and the recorded angle is the encoder's,
+    ``theta_e + encoder_offset``. ``to_phase_frame`` of the result with that
+    angle is then the phase file the drive would log.
 
     Args:
         plan: the experiment (checked for feasibility first).
         motor: the true machine, with its inverter and sensors.
         record_speed: also record the mechanical speed ``w_m`` (rad/s) and the
-            electrical angle ``theta_e`` (rad), as an encoder would.
+            electrical angle ``theta_e`` (rad), as an encoder would (its
+            offset included).
         delay_samples: the inverter's PWM/computation delay (samples; 0.5,
             1.5 where the PWM loads its duty mid-period); the file records the
             commands, as a real inverter log does.
@@ -237,11 +251,15 @@ def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
     segments = []
     for seg in plan.segments:
         t, states = _run_segment(seg, motor, plan.sample_rate, delay_samples)
-        theta_e = float(motor.pole_pairs) * states[:, 3]
+        # The encoder's angle: the phase sensors' offsets reach the drive's dq through it.
+        theta_e = float(motor.pole_pairs) * states[:, 3] + float(motor.encoder_offset)
         if any(float(getattr(motor, o)) != 0.0 for o in ("offset_d", "offset_q", "offset_a", "offset_b")):
             d_offset, q_offset = (np.asarray(o) for o in sensor_offsets(theta_e, motor))
         else:  # ideal sensors: exactly the zeros sensor_offsets gives, without its dozen eager JAX ops
             d_offset = q_offset = np.zeros(theta_e.shape)
+        i_d, i_q = states[:, 0], states[:, 1]
+        if float(motor.encoder_offset) != 0.0:
+            i_d, i_q = encoder_frame(i_d, i_q, float(motor.encoder_offset), xp=np)
         n = t.shape[0]
         segments.append(
             SegmentData(
@@ -249,7 +267,7 @@ def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
                 locked=seg.locked,
                 t=t,
                 voltages=seg.voltages(plan.sample_rate),
-                currents=np.stack([states[:, 0] + d_offset, states[:, 1] + q_offset], axis=1),
+                currents=np.stack([i_d + d_offset, i_q + q_offset], axis=1),
                 w_m=states[:, 2].copy() if record_speed else None,
                 temperature=None if seg.temperature is None else np.full(n, float(seg.temperature)),
                 theta_e=theta_e.copy() if record_speed else None,

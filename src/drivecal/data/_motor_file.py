@@ -45,9 +45,11 @@ class MotorSpec(StrictModel):
     offset_b: quantity("current") = 0.0
     alpha_R: quantity("temperature coefficient") = float(DEFAULT_MOTOR.alpha_R)
     T_ref: quantity("temperature") = float(DEFAULT_MOTOR.T_ref)
+    encoder_offset: quantity("rotor angle") = 0.0
     delay_samples: float = Field(default=0.0, ge=0, le=100, allow_inf_nan=False)
     estimate: list[Literal["R", "Ld", "Lq", "lambda_m", "delay", "v_dead", "i_dead", "offset_d", "offset_q",
-                           "offset_a", "offset_b", "alpha_R", "J", "B", "T_coulomb", "T_load"]] | None = None
+                           "offset_a", "offset_b", "alpha_R", "encoder_offset", "J", "B", "T_coulomb",
+                           "T_load"]] | None = None
 
 
 class MotorFile(BaseModel):
@@ -106,7 +108,7 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
         shown = spec.pole_pairs if abs(spec.pole_pairs) < 10**12 else "a huge number"
         raise DrivecalError(f"{source}: 'pole_pairs' must be a whole number from 1 to 1000, got {shown}.")
     values = spec.model_dump(exclude={"estimate", "delay_samples"})
-    signed = ("T_load", "offset_d", "offset_q", "offset_a", "offset_b", "T_ref")
+    signed = ("T_load", "offset_d", "offset_q", "offset_a", "offset_b", "T_ref", "encoder_offset")
     for name, value in values.items():
         if not math.isfinite(value):
             raise DrivecalError(f"{source}: '{name}' must be a finite number, got {value!r}.")

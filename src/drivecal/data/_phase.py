@@ -19,6 +19,14 @@ Two checks belong to phase data alone, each refusing in one sentence with the fi
   a common-mode (zero-sequence) voltage, as pole voltages against the DC link
   carry, is legitimate and removed by the Clarke transform.
 
+The angle column is taken as it is: an encoder whose zero is off the rotor's d axis reads
+``theta_e + encoder_offset`` (electrical, rad), and every dq column this module writes is then turned
+by ``-encoder_offset`` (``physics.encoder_frame``). The model corrects it where the motor file gives or
+estimates ``encoder_offset``, as a Park transform at ``theta_e - encoder_offset`` would
+(``model.in_rotor_frame``); so it does for a dq file's ``theta_e`` column, taken (as for the phase
+offsets) as the angle the drive's Park transform used. A dq bench file without an angle column was turned
+into dq by the drive with an angle the file does not hold: drivecal does not correct an encoder offset there.
+
 One check holds for any bench file with a turning rotor, phase or dq:
 
 - **Pole pairs.** Where a free segment shows both an electrical rotation (a

@@ -30,7 +30,7 @@ _QUANTITY: dict[str, str | None] = {
     "R": "resistance", "Ld": "inductance", "Lq": "inductance", "lambda_m": "flux", "J": "inertia",
     "B": "friction", "T_coulomb": "torque", "T_load": "torque", "v_dead": "voltage", "i_dead": "current",
     "offset_d": "current", "offset_q": "current", "offset_a": "current", "offset_b": "current",
-    "alpha_R": "temperature coefficient", "delay": None,
+    "alpha_R": "temperature coefficient", "delay": None, "encoder_offset": "rotor angle",
 }
 _SIGNED = re.compile(r"^\s*(±|\+-|\+/-|\+|-)?\s*(.*?)\s*$")
 _FORMS = ("'5 %' (two-sided), '-5 %' or '+5 %' (one-sided), an absolute width such as '0.02 ohm', "

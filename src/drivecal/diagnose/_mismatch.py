@@ -1,8 +1,9 @@
 """Which unmodelled bench effect do the residuals point to? Score tests.
 
 After a fit, each bench effect the model left out (a PWM/computation delay
-other than the one assumed, inverter dead time, current-sensor offsets) is
-tested with a Lagrange multiplier (score) test: does the effect's signature —
+other than the one assumed, inverter dead time, current-sensor offsets, and
+on a phase file with its rotor angle an encoder offset) is tested with a
+Lagrange multiplier (score) test: does the effect's signature —
 its sensitivity columns ``d(predicted currents)/d(effect's parameters)`` at
 the fitted motor, made orthogonal to the fitted parameters' columns — explain
 more of the residuals than noise would? Under a correct model the statistic
@@ -46,6 +47,15 @@ EFFECTS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
     "offsets": (("offset_d", "offset_q"), ("offset_d", "offset_q"),
                        "current-sensor offsets (a constant shift of i_d, i_q)"),
 }
+
+#: Effects tested only where they apply, in the same form: an encoder offset, on a file with a measured
+#: rotor angle (a phase file, or a dq file with its ``theta_e``; see ``model.model_experiment``). Not a
+#: candidate of ``--effects``: named with its fix, the offset is estimated where the user asks for it.
+ANGLE_EFFECTS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
+    "encoder_offset": (("encoder_offset",), ("encoder_offset",),
+                       "an encoder offset (the angle column's zero off the rotor's d axis)"),
+}
+_ALL_EFFECTS = {**EFFECTS, **ANGLE_EFFECTS}
 
 
 def _orthogonal_part(columns: np.ndarray, basis: np.ndarray) -> np.ndarray:
@@ -96,12 +106,12 @@ def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment
 
     ``m`` = 2 x samples (i_d and i_q interleaved per sample, as ``currents.reshape(-1)``).
     """
-    probes = tuple(n for e in effects for n in EFFECTS[e][1] if n not in fit_names)
+    probes = tuple(n for e in effects for n in _ALL_EFFECTS[e][1] if n not in fit_names)
     all_names = tuple(fit_names) + probes
     # Sensitivity columns at v_dead = 0 need no sub-steps (they resolve the sign's turn at v_dead != 0).
     probe = dataclasses.replace(model_experiment(experiment, motor, all_names), dead_time_substeps=1)
     jac = np.asarray(sensitivity_jacobian(motor, probe, all_names))
-    columns = {e: jac[:, [all_names.index(n) for n in EFFECTS[e][1]]] for e in effects}
+    columns = {e: jac[:, [all_names.index(n) for n in _ALL_EFFECTS[e][1]]] for e in effects}
     return jac[:, : len(fit_names)], columns
 
 
@@ -125,7 +135,8 @@ def unmodelled_effects(
         predicted: the fit's predicted ``[i_d, i_q]`` (A), shape (M, 2), when
             already computed (the report has them); else computed here.
         effects: the effects to test (default: every one of :data:`EFFECTS`
-            none of whose parameters the fit estimated).
+            none of whose parameters the fit estimated, and on a file with a
+            measured rotor angle the encoder offset of :data:`ANGLE_EFFECTS`).
 
     Returns:
         Per tested effect, most significant first: ``effect``, ``parameters``,
@@ -135,6 +146,8 @@ def unmodelled_effects(
     """
     if effects is None:
         effects = tuple(e for e, (params, _, _) in EFFECTS.items() if not set(params) & set(fit_names))
+        if experiment.has_angle:
+            effects += tuple(e for e, (params, _, _) in ANGLE_EFFECTS.items() if not set(params) & set(fit_names))
     if not effects:
         return []
     motor = with_experiment_delay(motor, experiment)
@@ -148,7 +161,7 @@ def unmodelled_effects(
     delay = float(motor.delay)
     out = []
     for effect in effects:
-        params, probes, what = EFFECTS[effect]
+        params, probes, what = _ALL_EFFECTS[effect]
         score = score_test(residual, columns[effect], fitted, sigma_hat)
         p = float(chi2_sf(score.statistic, score.dof)) if score.dof else float("nan")
         suspected = bool(score.dof and p < threshold)
@@ -159,6 +172,11 @@ def unmodelled_effects(
             suspected = suspected and (more or delay > 0)
             what = f"{'more' if more else 'less'} PWM/computation delay than the {delay:g} sample(s) assumed"
             fix = f"{'raise' if more else 'lower'} 'delay_samples' (motor file) or --delay, or use --effects auto"
+        if effect in ANGLE_EFFECTS:
+            step = float(getattr(motor, probes[0])) + float(score.step[0])
+            fix = (f"one step from this fit puts it at {np.degrees(step):.3g} deg electrical (SE "
+                   f"{np.degrees(float(score.step_se[0])):.2g} deg); add encoder_offset to 'estimate' (motor file) "
+                   "or --estimate, or set the encoder's zero in the drive")
         one_step = {n: {"estimate": float(getattr(motor, n)) + float(d), "se": float(se)}
                     for n, d, se in zip(probes, score.step, score.step_se)}
         out.append({
@@ -174,6 +192,7 @@ def unmodelled_effects(
             "message": f"the residuals carry the signature of {what} (score test p = {p:.2g}); {fix}"
             if suspected else f"no sign of {what} (score test p = {p:.2g})",
         })
-    # The most likely cause first.
-    out.sort(key=lambda e: (not e["suspected"], e["p_value"] if np.isfinite(e["p_value"]) else 2.0))
+    # The most likely cause first; among p-values that underflow alike, the largest statistic per degree of freedom.
+    out.sort(key=lambda e: (not e["suspected"], e["p_value"] if np.isfinite(e["p_value"]) else 2.0,
+                            -e["statistic"] / max(e["dof"], 1) if np.isfinite(e["statistic"]) else 0.0))
     return out

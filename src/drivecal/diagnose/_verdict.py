@@ -14,7 +14,8 @@ The criterion, kept simple on purpose so a reader can check it by hand:
      sensor noise, which is white; an unmodelled effect (a wrong R, saturation,
      dead time) leaves a smooth, autocorrelated trace.
    * a score test finds the signature of a bench effect the model left out
-     (delay, dead time, sensor offsets; ``diagnose/_mismatch.py``) at family-wise
+     (delay, dead time, sensor offsets; on a phase file with its rotor angle an
+     encoder offset; ``diagnose/_mismatch.py``) at family-wise
      level 1e-3: the most significant one is named first, in the headline
      and the first detail, with its fix.
    A sigma_hat well *below* the stated noise is reported as a note only.

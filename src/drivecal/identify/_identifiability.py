@@ -240,6 +240,9 @@ def structural_reason(name: str, experiment: Experiment) -> str | None:
             return f"every segment at one winding temperature ({known[0]:g} degC): alpha_R cannot be told from R"
     if name in ("offset_a", "offset_b") and not experiment.has_angle:
         return "per-phase offsets need a phase (abc) bench file with a rotor angle"
+    if name == "encoder_offset" and not experiment.has_angle:
+        return ("no rotor angle column: it is a dq file, which the drive turned into dq with an angle the file "
+                "does not hold, so drivecal does not correct an encoder offset in it")
     if name in MECHANICAL:
         if locked.all():
             return "no free-rotor segment (the mechanics act only where the rotor turns)"
@@ -249,8 +252,17 @@ def structural_reason(name: str, experiment: Experiment) -> str | None:
     return None
 
 
+#: What shows an encoder offset in the currents of a phase file (identifiability's advice).
+ENCODER_ADVICE = ("an encoder offset shows in a free segment (the back-EMF lies on the rotor's q axis: a spin-up "
+                  "shows it best) and, with the rotor locked, only through saliency (a step along a known direction "
+                  "answers with Ld along the rotor's d axis and Lq along q, so its current turns in the transient "
+                  "unless the step lies on an axis); add a free spin-up")
+
+
 def _why_dead(name: str, experiment: Experiment) -> str:
     """A plain-language reason a parameter has no effect on the currents."""
+    if name == "encoder_offset" and experiment.has_angle:
+        return f"no effect on the measured currents in this plan: {ENCODER_ADVICE}"
     return structural_reason(name, experiment) or "no effect on the measured currents in this plan"
 
 
@@ -276,6 +288,8 @@ def _why_weak(name: str, experiment: Experiment, fit_names: tuple[str, ...], cov
         if known.size:
             return (f"temperature spread of {np.ptp(known):.3g} K is too small to tell alpha_R from R: {partner}, "
                     f"{what}; run segments further apart in temperature")
+    if name == "encoder_offset":
+        return f"{partner}, {what}: {ENCODER_ADVICE}"
     return f"{partner}, {what}"
 
 
@@ -348,6 +362,8 @@ def check_requested(names: tuple[str, ...], experiment: Experiment, source: str)
                 "alpha_R": "run segments at two or more winding temperatures",
                 "offset_a": "give a phase bench file (i_a, i_b, v_a, v_b, theta_e) or estimate offset_d/offset_q",
                 "offset_b": "give a phase bench file (i_a, i_b, v_a, v_b, theta_e) or estimate offset_d/offset_q",
+                "encoder_offset": "give the phase bench file (i_a, i_b, v_a, v_b with theta_e or theta_m) or set the "
+                                  "encoder's zero in the drive and record again",
                 **dict.fromkeys(MECHANICAL, "fit with --simulated-speed on a run with a free segment (a spin-up "
                                             "followed by a coast-down shows friction best)"),
             }[name]

@@ -1,13 +1,15 @@
 """The forward model: the experiment on the sample grid, RK4 rollouts, compiled entry points and their on-disk cache."""
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
-from ._experiment import Experiment, SEGMENT_KINDS, model_experiment, stack_experiments, with_experiment_delay
+from ._experiment import (Experiment, SEGMENT_KINDS, in_rotor_frame, model_experiment, stack_experiments,
+                          with_experiment_delay)
 from ._rollout import (current_parts, join_current_parts, measured_currents, predict_current_parts, predict_currents,
                        predicted_currents, rk4_step, simulate_states)
 from ._lowered_cache import call as cached_call, directory as lowered_cache_directory
 from ._steps import delay_inputs
 
-__all__ = ["Experiment", "SEGMENT_KINDS", "cached_call", "current_parts", "delay_inputs", "join_current_parts",
+__all__ = ["Experiment", "SEGMENT_KINDS", "cached_call", "current_parts", "delay_inputs", "in_rotor_frame",
+           "join_current_parts",
            "lowered_cache_directory", "measured_currents", "model_experiment", "predict_current_parts",
            "predict_currents", "predicted_currents", "rk4_step", "simulate_states", "stack_experiments",
            "with_experiment_delay"]

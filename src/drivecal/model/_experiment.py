@@ -16,7 +16,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ..physics import MotorParams, delayed
+from ..physics import MotorParams, delayed, rotor_frame
 from ..plan import Plan
 
 
@@ -51,6 +51,12 @@ class Experiment(eqx.Module):
             a model with it compiles separately).
         phase_offsets: the measured currents include the phase sensors'
             offsets ``offset_a``, ``offset_b``, rotated by the rotor angle (static).
+        encoder_offset: the file's dq quantities came from a Park transform at
+            a measured angle that reads ``theta_e + motor.encoder_offset``
+            (static; a bench file's angle column): the model turns the
+            voltages and starting currents into the rotor frame before the
+            rollout and the currents back after it (:func:`in_rotor_frame`,
+            ``physics.encoder_frame``).
         thermal: some segment recorded a temperature, so R follows it (static;
             without it the rollout skips the per-sample resistance).
         dead_time_substeps: RK4 sub-steps per sample with the dead-time model
@@ -85,6 +91,7 @@ class Experiment(eqx.Module):
     theta_e_start: jnp.ndarray
     dead_time: bool = eqx.field(static=True, default=False)
     phase_offsets: bool = eqx.field(static=True, default=False)
+    encoder_offset: bool = eqx.field(static=True, default=False)
     thermal: bool = eqx.field(static=True, default=False)
     dead_time_substeps: int = eqx.field(static=True, default=4)
     segments: tuple[tuple[int, int, str], ...] | None = eqx.field(static=True, default=None)
@@ -242,20 +249,47 @@ def model_experiment(experiment: Experiment, motor: MotorParams, names: tuple[st
     sample, so each is compiled in only when its parameters are estimated or
     set non-zero (the delay: estimated, or not a whole number of samples; a
     whole-sample delay is the experiment's ``base_delay``, see
-    :func:`with_experiment_delay`).
+    :func:`with_experiment_delay`). The encoder offset turns the frame only
+    of an experiment with a measured angle (every phase bench file; a dq
+    file's ``theta_e`` column is taken, as for the phase offsets, as the angle
+    its Park transform used): a dq file without one was turned into dq by the
+    drive with an angle the file does not hold.
     """
     def used(name):
         return name in names or bool(np.any(np.asarray(getattr(motor, name)) != 0.0))
 
     dead_time = experiment.dead_time or used("v_dead")
     phase_offsets = experiment.phase_offsets or used("offset_a") or used("offset_b")
+    encoder = experiment.encoder_offset or (used("encoder_offset") and experiment.has_angle)
     delay = np.asarray(motor.delay)
     fractional = experiment.fractional_delay or "delay" in names or bool(np.any(delay != np.floor(delay)))
-    if (dead_time, phase_offsets, fractional) == (experiment.dead_time, experiment.phase_offsets,
-                                                  experiment.fractional_delay):
+    if (dead_time, phase_offsets, encoder, fractional) == (experiment.dead_time, experiment.phase_offsets,
+                                                           experiment.encoder_offset, experiment.fractional_delay):
         return experiment
     return dataclasses.replace(experiment, dead_time=dead_time, phase_offsets=phase_offsets,
-                               fractional_delay=fractional)
+                               encoder_offset=encoder, fractional_delay=fractional)
+
+
+def in_rotor_frame(motor: MotorParams, experiment: Experiment) -> Experiment:
+    """``experiment`` as the motor sees it: a phase file's dq inputs turned into the rotor frame (traceable).
+
+    Where ``experiment.encoder_offset`` (static) is set, the applied voltages and the currents a
+    segment starts from are turned by ``+motor.encoder_offset`` (``physics.rotor_frame``), and the
+    angle at each segment's start becomes the rotor's, ``theta_e_start - encoder_offset`` (the dead
+    time acts at it); else ``experiment`` itself. The angle column (``theta_e``) stays the
+    encoder's: the phase sensors' offsets reach the file's dq through it.
+    """
+    if not experiment.encoder_offset:
+        return experiment
+    offset = jnp.asarray(motor.encoder_offset, dtype=float)
+    v_d, v_q = rotor_frame(experiment.voltages[..., 0], experiment.voltages[..., 1], offset)
+    i_d, i_q = rotor_frame(experiment.initial_state[..., 0], experiment.initial_state[..., 1], offset)
+    return dataclasses.replace(
+        experiment,
+        voltages=jnp.stack([v_d, v_q], axis=-1),
+        initial_state=jnp.concatenate([jnp.stack([i_d, i_q], axis=-1), experiment.initial_state[..., 2:]], axis=-1),
+        theta_e_start=experiment.theta_e_start - offset,
+    )
 
 
 def stack_experiments(experiments: list[Experiment]) -> Experiment:
@@ -266,7 +300,7 @@ def stack_experiments(experiments: list[Experiment]) -> Experiment:
     """
     # Static model switches must agree across the batch: switch on what any one needs.
     flags = {f: any(getattr(e, f) for e in experiments)
-             for f in ("dead_time", "phase_offsets", "thermal", "fractional_delay")}
+             for f in ("dead_time", "phase_offsets", "encoder_offset", "thermal", "fractional_delay")}
     # The segment layout is shared by the batch; where the datasets' layouts differ, none is used.
     layouts = {e.segments for e in experiments}
     flags["segments"] = layouts.pop() if len(layouts) == 1 else None

@@ -29,11 +29,11 @@ import jax.numpy as jnp
 import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
-from ._experiment import Experiment
+from ._experiment import Experiment, in_rotor_frame
 from ._lowered_cache import call as cached_call
 from ._steps import _held, _quadratic, _rk4, _with_delay
 from ..physics import DqCoefficients, MotorParams, dead_time_error, dq_coefficients, dq_derivatives_from
-from ..physics import resistance_at, sensor_offsets, with_dq_offsets
+from ..physics import encoder_frame, resistance_at, sensor_offsets, with_dq_offsets
 
 
 def rk4_step(
@@ -80,9 +80,10 @@ def rk4_step(
 def simulate_states(motor: MotorParams, experiment: Experiment, keep: int = 4) -> jnp.ndarray:
     """Predicted state at every sample instant, shape (M, keep): the first ``keep`` of (A, A, rad/s, rad).
 
-    ``keep=2`` gives the currents only, ``keep=3`` currents and speed.
+    ``keep=2`` gives the currents only, ``keep=3`` currents and speed. In the rotor frame: a phase
+    file's encoder offset (``Experiment.encoder_offset``) is taken out of the inputs first.
     """
-    return _rollout(motor, experiment, keep)
+    return _rollout(motor, in_rotor_frame(motor, experiment), keep)
 
 
 def _rollout(motor: MotorParams, experiment: Experiment, keep: int) -> jnp.ndarray:
@@ -421,15 +422,19 @@ def predict_currents(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
 
     The motor's currents plus what the current sensors add: the dq offsets,
     and the phase offsets rotated into dq by the electrical angle (measured
-    where the bench file has one, else simulated).
+    where the bench file has one, else simulated). With a phase file's encoder
+    offset (``Experiment.encoder_offset``) the rollout runs in the rotor frame
+    and its currents are turned into the file's frame.
     """
     # The rotor angle (state 3) is written out only when phase offsets need it.
-    return measured_currents(_rollout(motor, experiment, 4 if experiment.phase_offsets else 2), motor, experiment)
+    states = _rollout(motor, in_rotor_frame(motor, experiment), 4 if experiment.phase_offsets else 2)
+    return measured_currents(states, motor, experiment)
 
 
 def _segmented(experiment: Experiment) -> bool:
     """Whether :func:`predict_current_parts` splits by segment (else one part over all samples; static)."""
-    return experiment.segments is not None and not experiment.dead_time and not experiment.phase_offsets
+    return (experiment.segments is not None and not experiment.dead_time and not experiment.phase_offsets
+            and not experiment.encoder_offset)
 
 
 def predict_current_parts(motor: MotorParams, experiment: Experiment) -> tuple:
@@ -479,11 +484,17 @@ def measured_currents(states: jnp.ndarray, motor: MotorParams, experiment: Exper
     """``[i_d, i_q]`` (A) the sensors report for simulated ``states``: the currents plus offsets, (M, 2).
 
     ``states`` has shape (M, 4), or (M, 2) (currents only) when the experiment
-    does not model phase offsets.
+    does not model phase offsets. They are in the rotor frame; with a phase file's
+    encoder offset (``Experiment.encoder_offset``) the currents are turned into the
+    file's frame (``physics.encoder_frame``) before the offsets, which the sensors
+    add there, are added (the phase offsets at the file's own angle).
     """
+    i_d, i_q = states[:, 0], states[:, 1]
+    if experiment.encoder_offset:
+        i_d, i_q = encoder_frame(i_d, i_q, motor.encoder_offset)
     if not experiment.phase_offsets:
-        return jnp.stack(with_dq_offsets(states[:, 0], states[:, 1], motor), axis=-1)
+        return jnp.stack(with_dq_offsets(i_d, i_q, motor), axis=-1)
     theta = jnp.where(jnp.isnan(experiment.theta_e), experiment.theta_e_start + motor.pole_pairs * states[:, 3],
                       experiment.theta_e)
     d_offset, q_offset = sensor_offsets(theta, motor)
-    return jnp.stack([states[:, 0] + d_offset, states[:, 1] + q_offset], axis=-1)
+    return jnp.stack([i_d + d_offset, i_q + q_offset], axis=-1)

@@ -1,5 +1,5 @@
 """The motor's laws, once: the dq equations, parameters and units, the Clarke/Park transforms, the inverter's
-voltage error and delay, the current sensors' offsets."""
+voltage error and delay, the current sensors' offsets, the encoder's offset."""
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
 from ._inverter import dead_time_error
@@ -7,12 +7,12 @@ from ._motor import (ADDITIVE_SCALE, DEFAULT_MOTOR, DESCRIPTIONS, DqCoefficients
                      MECHANICAL, MotorParams, NUISANCE, SETTINGS, UNITS, coulomb_friction, dq_coefficients,
                      dq_derivatives, dq_derivatives_from,
                      from_search, parameter_values, resistance_at, search_scale, to_search, with_d_flux)
-from ._sensors import delayed, sensor_offsets, with_dq_offsets
+from ._sensors import delayed, encoder_frame, rotor_frame, sensor_offsets, with_dq_offsets
 from ._transforms import abc_to_dq, clarke, dq_to_abc, inverse_clarke, inverse_park, park
 
 __all__ = ["ADDITIVE_SCALE", "DEFAULT_MOTOR", "DESCRIPTIONS", "DqCoefficients", "ESTIMABLE", "ESTIMATED", "FIXED",
            "MECHANICAL", "MotorParams", "NUISANCE", "SETTINGS", "UNITS", "abc_to_dq", "clarke", "coulomb_friction",
-           "dead_time_error", "delayed",
+           "dead_time_error", "delayed", "encoder_frame",
            "dq_coefficients", "dq_derivatives", "dq_derivatives_from", "dq_to_abc", "from_search", "inverse_clarke",
-           "inverse_park", "parameter_values", "park", "resistance_at", "search_scale", "sensor_offsets", "to_search",
-           "with_d_flux", "with_dq_offsets"]
+           "inverse_park", "parameter_values", "park", "resistance_at", "rotor_frame", "search_scale",
+           "sensor_offsets", "to_search", "with_d_flux", "with_dq_offsets"]

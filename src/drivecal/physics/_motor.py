@@ -34,7 +34,8 @@ FIXED: tuple[str, ...] = ("pole_pairs", "J", "B")
 #: Bench effects that stand between the motor and the measurement, each
 #: optional: estimated only when named (motor file ``estimate``), else held at
 #: the motor file's value (zero by default: an ideal inverter and sensors).
-NUISANCE: tuple[str, ...] = ("delay", "v_dead", "i_dead", "offset_d", "offset_q", "offset_a", "offset_b", "alpha_R")
+NUISANCE: tuple[str, ...] = ("delay", "v_dead", "i_dead", "offset_d", "offset_q", "offset_a", "offset_b", "alpha_R",
+                             "encoder_offset")
 #: Mechanical parameters, estimable when named (J and B are otherwise held at the motor file's
 #: values, T_coulomb and T_load at zero): they act on the currents only where the rotor turns and
 #: its speed is simulated, not taken from a measured speed.
@@ -52,6 +53,7 @@ ADDITIVE_SCALE: dict[str, float] = {
     "offset_q": 0.01,
     "offset_a": 0.01,
     "offset_b": 0.01,
+    "encoder_offset": 0.05,
     "T_coulomb": 1e-3,
     "T_load": 1e-3,
 }
@@ -72,6 +74,7 @@ UNITS: dict[str, str] = {
     "offset_a": "A",
     "offset_b": "A",
     "alpha_R": "1/K",
+    "encoder_offset": "rad",
     "T_load": "N*m",
     "T_coulomb": "N*m",
     "w_coulomb": "rad/s",
@@ -95,6 +98,7 @@ DESCRIPTIONS: dict[str, str] = {
     "offset_a": "phase-a current-sensor offset",
     "offset_b": "phase-b current-sensor offset",
     "alpha_R": "temperature coefficient of R",
+    "encoder_offset": "encoder zero's offset from the d axis (electrical): the angle column reads theta_e + offset",
     "T_load": "load torque",
     "T_coulomb": "Coulomb (dry) friction torque",
     "w_coulomb": "speed width of the Coulomb friction's sign",
@@ -136,6 +140,11 @@ class MotorParams(eqx.Module):
         alpha_R: temperature coefficient of R (1/K); copper 3.93e-3.
         T_ref: winding temperature (degC) at which R is stated:
             ``R(T) = R * (1 + alpha_R * (T - T_ref))``.
+        encoder_offset: electrical angle (rad) by which the encoder's zero is
+            off the rotor's d axis: a phase bench file's angle column reads
+            ``theta_e + encoder_offset``, so its Park transform turns every dq
+            quantity by ``-encoder_offset`` (``_sensors.encoder_frame``) and the
+            true rotor-frame angle is the column minus the offset.
 
     The defaults are the 48 V interior PMSM of the drivecal tutorial bench on
     an ideal inverter and ideal sensors.
@@ -160,6 +169,7 @@ class MotorParams(eqx.Module):
     offset_b: Any = 0.0
     alpha_R: Any = 3.93e-3
     T_ref: Any = 20.0
+    encoder_offset: Any = 0.0
 
     def replace(self, **changes: Any) -> MotorParams:
         """A copy with the named fields changed, e.g. ``motor.replace(R=0.5)``."""

@@ -1,4 +1,13 @@
-"""What stands between the motor and the bench log: the inverter's command delay, the current sensors' offsets.
+"""What stands between the motor and the bench log: the inverter's command delay, the current sensors' offsets,
+the encoder's offset.
+
+Encoder offset, sign convention: the encoder's angle reads ``theta_enc = theta_e + encoder_offset``
+(electrical, rad; ``theta_e`` the true angle of the rotor's d axis from phase a). A phase bench file's
+Park transform at ``theta_enc`` turns every quantity whose rotor-frame components are ``x`` into
+``Rot(-encoder_offset) x`` (:func:`encoder_frame`), currents and voltages alike; the true components are
+``Rot(+encoder_offset)`` of the file's (:func:`rotor_frame`). Correcting the file means a Park transform at
+``theta_enc - encoder_offset``; the model does the same by turning the file's voltages into the rotor
+frame before the rollout and its currents back after it.
 
 The forward model (``drivecal.model``) and the synthetic bench on the engine
 (``drivecal.bench``) both apply these, so a fit and its synthetic truth see
@@ -9,10 +18,11 @@ from __future__ import annotations
 
 from typing import Any
 
+import jax.numpy as jnp
 import numpy as np
 
 from ._motor import MotorParams
-from ._transforms import abc_to_dq
+from ._transforms import abc_to_dq, inverse_park, park
 
 
 def delayed(voltages: np.ndarray, delay_samples: int, *, at_rest: bool | np.ndarray = True) -> np.ndarray:
@@ -48,3 +58,17 @@ def sensor_offsets(theta_e: Any, motor: MotorParams) -> tuple[Any, Any]:
     """
     d_offset, q_offset = abc_to_dq(motor.offset_a, motor.offset_b, None, theta_e)
     return with_dq_offsets(d_offset, q_offset, motor)
+
+
+def encoder_frame(d: Any, q: Any, encoder_offset: Any, xp: Any = jnp) -> tuple[Any, Any]:
+    """Rotor-frame ``(d, q)`` as a Park transform at the encoder's angle gives them: turned by ``-encoder_offset``.
+
+    ``Park(theta_e + offset) = Rot(-offset) Park(theta_e)``: :func:`park` of ``(d, q)`` at the offset (rad).
+    ``xp``: the array module (JAX's by default).
+    """
+    return park(d, q, encoder_offset, xp)
+
+
+def rotor_frame(d: Any, q: Any, encoder_offset: Any, xp: Any = jnp) -> tuple[Any, Any]:
+    """A phase file's ``(d, q)`` in the rotor frame: turned by ``+encoder_offset`` (inverse of :func:`encoder_frame`)."""
+    return inverse_park(d, q, encoder_offset, xp)
