@@ -249,8 +249,7 @@ def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
     plan.check_feasible()
     _quiet_jaxonomy()
     segments = []
-    for seg in plan.segments:
-        t, states = _run_segment(seg, motor, plan.sample_rate, delay_samples)
+    for seg, t, states in _plan_states(plan, motor, delay_samples):
         # The encoder's angle: the phase sensors' offsets reach the drive's dq through it.
         theta_e = float(motor.pole_pairs) * states[:, 3] + float(motor.encoder_offset)
         if any(float(getattr(motor, o)) != 0.0 for o in ("offset_d", "offset_q", "offset_a", "offset_b")):
@@ -271,9 +270,63 @@ def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
                 w_m=states[:, 2].copy() if record_speed else None,
                 temperature=None if seg.temperature is None else np.full(n, float(seg.temperature)),
                 theta_e=theta_e.copy() if record_speed else None,
+                continues=seg.continues,
+                inverter_off=seg.inverter == "off",
             )
         )
     return BenchData(segments=tuple(segments), sample_rate=plan.sample_rate, source="synthetic bench")
+
+
+def _plan_states(plan: Plan, motor: MotorParams, delay_samples: float):
+    """``(segment, t, states)`` per segment of ``plan``: the engine's states at the sample instants.
+
+    Segments that continue one another with the inverter on run as one engine run (the state and the
+    delayed command carry over), then are split again, each with its own clock from 0. An inverter-off
+    segment (a coast-down) starts where the previous run arrived one sample later, its currents zero,
+    and its speed comes from ``J dw_m/dt = -B w_m - T_coulomb tanh(w_m / w_coulomb) - T_load`` solved by
+    scipy's adaptive Runge-Kutta (not drivecal's model): the block cannot hold its currents at zero.
+    """
+    fs = plan.sample_rate
+    chains: list[list[Segment]] = []
+    for seg in plan.segments:
+        if seg.continues and seg.inverter == "on" and chains[-1][-1].inverter == "off":
+            raise PlanError(f"segment '{seg.name}': the engine bench cannot start the inverter again after an "
+                            "inverter-off segment; begin a new segment from rest (continue = false).")
+        if seg.continues and seg.inverter == chains[-1][-1].inverter == "on":
+            chains[-1].append(seg)
+        else:
+            chains.append([seg])
+    arrived = None  # the state one sample after the previous chain's last
+    for k, chain in enumerate(chains):
+        counts = [seg.num_samples(fs) for seg in chain]
+        follows = k + 1 < len(chains) and chains[k + 1][0].continues
+        if chain[0].inverter == "off":
+            states = _coast(motor, arrived, sum(counts) + follows, fs)
+        else:
+            volts = np.concatenate([seg.voltages(fs) for seg in chain] + ([chain[-1].voltages(fs)[-1:]] if follows
+                                                                          else []))
+            run = Segment(chain[0].name, volts.shape[0] / fs, chain[0].locked, volts[:, 0], volts[:, 1],
+                          temperature=chain[0].temperature)
+            states = _run_segment(run, motor, fs, delay_samples)[1]
+        arrived = states[-1] if follows else None
+        at = 0
+        for seg, n in zip(chain, counts):
+            yield seg, np.arange(n) / fs, states[at:at + n]
+            at += n
+
+
+def _coast(motor: MotorParams, start: np.ndarray, n: int, sample_rate: float) -> np.ndarray:
+    """States (n, 4) at the sample instants of a rotor coasting from ``start`` with no current (scipy, rtol 1e-12)."""
+    from scipy.integrate import solve_ivp
+
+    def mechanics(_, x):
+        torque = float(motor.T_load) + float(coulomb_friction(x[0], float(motor.T_coulomb), float(motor.w_coulomb)))
+        return [(-float(motor.B) * x[0] - torque) / float(motor.J), x[0]]
+
+    t = np.arange(n) / sample_rate
+    solved = solve_ivp(mechanics, (0.0, t[-1]), [start[2], start[3]], t_eval=t, rtol=1e-12, atol=1e-12,
+                       method="DOP853")
+    return np.stack([np.zeros(n), np.zeros(n), solved.y[0], solved.y[1]], axis=1)
 
 
 def synthetic_bench(plan: Plan, motor: MotorParams, *, noise: float = 0.02, seed: int = 1) -> BenchData:

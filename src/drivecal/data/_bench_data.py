@@ -45,6 +45,11 @@ class SegmentData:
         temperature: winding temperature (degC) per sample, shape (N,), or None.
         theta_e: measured electrical rotor angle (rad) per sample, shape (N,),
             of a phase bench file, or None.
+        continues: the segment continues the previous one (one sample period after its
+            last sample, not at rest): the model carries its state and the delayed
+            command over instead of starting from this segment's first sample.
+        inverter_off: the inverter's switches were open (bench-file column ``inverter``
+            0): no current flows and a free rotor coasts on its friction.
     """
 
     name: str
@@ -56,6 +61,8 @@ class SegmentData:
     at_rest: bool = True
     temperature: np.ndarray | None = None
     theta_e: np.ndarray | None = None
+    continues: bool = False
+    inverter_off: bool = False
 
     @property
     def num_samples(self) -> int:
@@ -133,11 +140,14 @@ class BenchData:
     def to_frame(self) -> pd.DataFrame:
         """One row per sample with the bench-file columns."""
         frames = []
-        for seg in self.segments:
+        start = 0.0  # a continuing segment's clock runs on from the previous one's (one sample period later)
+        for k, seg in enumerate(self.segments):
+            prev = self.segments[k - 1] if k else None
+            start = start + float(prev.t[-1]) + 1.0 / self.sample_rate if seg.continues and prev is not None else 0.0
             cols = {
                 "segment": seg.name,
                 "locked": int(seg.locked),
-                "t": seg.t,
+                "t": seg.t + start,
                 "v_d": seg.voltages[:, 0],
                 "v_q": seg.voltages[:, 1],
                 "i_d": seg.currents[:, 0],
@@ -147,6 +157,8 @@ class BenchData:
                 cols["w_m"] = seg.w_m if seg.w_m is not None else np.zeros(seg.num_samples)
             if any(s.theta_e is not None for s in self.segments):
                 cols["theta_e"] = seg.theta_e if seg.theta_e is not None else np.zeros(seg.num_samples)
+            if any(s.inverter_off for s in self.segments):
+                cols["inverter"] = int(not seg.inverter_off)
             if any(s.temperature is not None for s in self.segments):
                 cols["temperature"] = seg.temperature if seg.temperature is not None else np.full(seg.num_samples,
                                                                                                   np.nan)
@@ -233,4 +245,6 @@ def _experiment(benches: list[BenchData], measured_speed: bool, delay_samples: f
         angles=per_segment(lambda seg: seg.theta_e, nan),
         delay_samples=delay_samples,
         host=host,
+        continues=[seg.continues for seg in first],
+        inverter_off=[seg.inverter_off for seg in first],
     )

@@ -42,7 +42,7 @@ DQ_COLUMNS: dict[str, str] = {
     "i_q": "the measured q-axis current in A",
 }
 #: The numeric columns of a dq bench file the checks read, in the order they are checked (those present).
-_NUMERIC = ("locked", "t", "v_d", "v_q", "i_d", "i_q", "w_m", "theta_e")
+_NUMERIC = ("locked", "t", "v_d", "v_q", "i_d", "i_q", "w_m", "theta_e", "inverter")
 #: Samples at a segment's start from which the at-rest check estimates the sensor noise.
 AT_REST_NOISE_SAMPLES = 256
 
@@ -256,6 +256,17 @@ def _starts_at_rest(currents: np.ndarray, w_m: np.ndarray | None, locked: Any) -
     return at_rest
 
 
+def _continues(previous: _Segment, previous_last: np.ndarray, first: np.ndarray, seg: _Segment) -> np.ndarray:
+    """Per table, whether ``seg`` continues ``previous``: its first sample (``first``, s) comes one sample
+    period after the previous segment's last (``previous_last``, s) on one time axis, the rotor is in the
+    same condition (locked or free), and the segment does not start from rest. The model then carries
+    its state (currents, speed, angle) and the delayed command over, instead of restarting from the
+    noisy first sample; a segment at rest after a contiguous one starts from rest."""
+    contiguous = np.abs(first - previous_last - seg.period) <= 0.25 * seg.period
+    same = np.asarray(previous.locked) == np.asarray(seg.locked)
+    return contiguous & same & ~np.asarray(seg.at_rest)
+
+
 def _temperature(values: np.ndarray) -> tuple[Any, Any]:
     """A segment's ``temperature`` (degC, NaN where blank): whether it is not recorded (all blank), and
     whether it is recorded right (all blank or every value finite)."""
@@ -296,6 +307,14 @@ class _Segment:
     at_rest: np.ndarray | None = None
     no_temperature: np.ndarray | None = None
     temperature_ok: np.ndarray | None = None
+    inverter_ok: np.ndarray | None = None  # (B,) the 'inverter' column is one value, 0 or 1, over the segment
+    inverter_off: Any = False  # per table: the inverter was off (switches open, no current)
+    continues: Any = False  # per table: the segment continues the previous one (see _continues)
+
+
+def _pick(flags: Any, b: int) -> bool:
+    """Table ``b``'s flag of a per-table list, or the flag itself (False: not recorded)."""
+    return bool(flags[b]) if isinstance(flags, list) else bool(flags)
 
 
 @dataclasses.dataclass
@@ -318,7 +337,8 @@ class _Checked:
             SegmentData(seg.name, seg.locked[b], seg.clock[b], seg.voltages[b], seg.currents[b],
                         None if seg.w_m is None else seg.w_m[b], seg.at_rest[b],
                         None if seg.temperature is None or seg.no_temperature[b] else seg.temperature[b],
-                        None if seg.theta_e is None else seg.theta_e[b])
+                        None if seg.theta_e is None else seg.theta_e[b],
+                        continues=_pick(seg.continues, b), inverter_off=_pick(seg.inverter_off, b))
             for seg in self.segments
         ), sample_rate=self.rates[0][b], source=source)
 
@@ -357,6 +377,12 @@ class _Checked:
                 return DataError(
                     f"{where}: column 'locked' must be one value, 0 or 1, over the segment; "
                     f"got {np.unique(self.column['locked'][b, seg.lo:seg.hi]).tolist()}."
+                )
+            if seg.inverter_ok is not None and not seg.inverter_ok[b]:
+                return DataError(
+                    f"{where}: column 'inverter' must be one value over the segment, 1 (on) or 0 (off: switches "
+                    f"open, no current); got {np.unique(self.column['inverter'][b, seg.lo:seg.hi]).tolist()}; "
+                    "split the segment where the inverter turns on or off."
                 )
             if seg.temperature is not None and not seg.temperature_ok[b]:
                 k = int(np.flatnonzero(~np.isfinite(seg.temperature[b]))[0])
@@ -425,6 +451,12 @@ def _check(tables: list[Columns], names: list[str], sizes: list[int], nominal_R:
             seg.at_rest = _starts_at_rest(seg.currents, seg.w_m, seg.locked)
             seg.clock = t - t[:, :1]
             ok &= seg.increasing & seg.uniform & seg.lock_ok
+            if "inverter" in column:
+                seg.inverter_ok, on = _locked_flag(column["inverter"][:, rows])
+                ok &= seg.inverter_ok
+                seg.inverter_off = (~on).tolist()
+            if segments and segments[-1].clock is not None:
+                seg.continues = _continues(segments[-1], column["t"][:, segments[-1].hi - 1], t[:, 0], seg).tolist()
             if seg.temperature is not None:
                 seg.no_temperature, seg.temperature_ok = _temperature(seg.temperature)
                 ok &= seg.temperature_ok

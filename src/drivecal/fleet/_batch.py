@@ -110,7 +110,8 @@ def _shape_key(bench: BenchData, measured_speed: bool) -> tuple:
     return (
         round(bench.sample_rate, 6),
         tuple(
-            (s.num_samples, s.locked, bool(measured_speed and s.w_m is not None and not s.locked))
+            (s.num_samples, s.locked, bool(measured_speed and s.w_m is not None and not s.locked), s.continues,
+             s.inverter_off)
             for s in bench.segments
         ),
     )

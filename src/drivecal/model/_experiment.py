@@ -21,8 +21,9 @@ from ..plan import Plan
 
 
 #: Kinds of segment in ``Experiment.segments``: the rotor is locked; the speed
-#: is measured and drives the electrical equations; the speed is simulated.
-SEGMENT_KINDS: tuple[str, ...] = ("locked", "measured", "free")
+#: is measured and drives the electrical equations; the speed is simulated; the
+#: inverter is off (no current flows, a free rotor coasts on its friction).
+SEGMENT_KINDS: tuple[str, ...] = ("locked", "measured", "free", "coast")
 
 
 class Experiment(eqx.Module):
@@ -64,6 +65,10 @@ class Experiment(eqx.Module):
         segments: the segment layout (static): ``(start, stop, kind)`` per
             segment, samples ``start:stop``, ``kind`` one of :data:`SEGMENT_KINDS`;
             None when unknown (the rollout is then one scan over all samples).
+        carried: the indices (into ``segments``) of the segments that continue the
+            previous one (static): their state at the first sample is where the
+            previous segment's rollout arrived, not ``initial_state``, and the
+            delayed command carries over (:func:`chain_starts`).
         base_delay: the whole samples of inverter delay already applied in
             ``voltages`` (static): row k is the command of sample k - base_delay.
         fractional_delay: the model applies the rest of the motor's ``delay``
@@ -95,6 +100,7 @@ class Experiment(eqx.Module):
     thermal: bool = eqx.field(static=True, default=False)
     dead_time_substeps: int = eqx.field(static=True, default=4)
     segments: tuple[tuple[int, int, str], ...] | None = eqx.field(static=True, default=None)
+    carried: tuple[int, ...] = eqx.field(static=True, default=())
     base_delay: int = eqx.field(static=True, default=0)
     fractional_delay: bool = eqx.field(static=True, default=False)
     linearised_tangents: bool = eqx.field(static=True, default=True)
@@ -116,6 +122,8 @@ class Experiment(eqx.Module):
         angles: list[np.ndarray | None] | None = None,
         delay_samples: float = 0.0,
         host: bool = False,
+        continues: list[bool] | None = None,
+        inverter_off: list[bool] | None = None,
     ) -> Experiment:
         """Lay segments end to end.
 
@@ -142,19 +150,32 @@ class Experiment(eqx.Module):
                 and ``fractional_delay``).
             host: keep the arrays in numpy (a fleet stacks thousands of
                 experiments: one transfer for the stack, not one per field and motor).
+            continues: per segment, whether it continues the previous one (its state
+                and the delayed command carry over; ``Experiment.carried``).
+            inverter_off: per segment, whether the inverter's switches are open (kind
+                "coast": no current flows; the voltages are not applied).
         """
         base = _whole_samples(delay_samples)
         batch = np.shape(voltages[0])[:-2]  # leading axes: one experiment per dataset (see stack_experiments)
         applied, starts, lock, x0, speed, use, temp, theta, theta0 = [], [], [], [], [], [], [], [], []
         layout, at = [], 0
+        carried = tuple(s for s in range(1, len(voltages)) if continues is not None and continues[s])
         for s, v in enumerate(voltages):
             n = v.shape[-2]
             measured = speeds is not None and speeds[s] is not None
-            layout.append((at, at + n, "measured" if measured else "locked" if locked[s] else "free"))
+            off = inverter_off is not None and inverter_off[s]
+            layout.append((at, at + n, "coast" if off else "measured" if measured else "locked" if locked[s] else "free"))
             at += n
             init = np.zeros(4) if initial_states is None else np.asarray(initial_states[s], dtype=float)
             init = np.broadcast_to(init, batch + (4,))
-            applied.append(delayed(v, base, at_rest=~np.any(init[..., :3] != 0.0, axis=-1)))
+            if off:
+                v = np.zeros_like(v)  # switches open: nothing applied
+            if s in carried:  # the previous segment's last commands act first
+                previous = voltages[s - 1] if inverter_off is None or not inverter_off[s - 1] else 0.0 * voltages[s - 1]
+                v_chain = np.concatenate([previous, v], axis=-2)
+                applied.append(delayed(v_chain, base)[..., -n:, :])
+            else:
+                applied.append(delayed(v, base, at_rest=~np.any(init[..., :3] != 0.0, axis=-1)))
             t_s = None if temperatures is None else temperatures[s]
             temp.append(np.full(batch + (n,), np.nan) if t_s is None
                         else np.broadcast_to(np.asarray(t_s, dtype=float), batch + (n,)))
@@ -162,6 +183,8 @@ class Experiment(eqx.Module):
             theta.append(np.full(batch + (n,), np.nan) if a_s is None else np.asarray(a_s, dtype=float))
             # The measured angle at the start, else 0 (also for a dataset of a stack that has none: NaN).
             a0 = 0.0 if a_s is None else np.asarray(a_s, dtype=float)[..., :1]
+            if s in carried:  # the angle runs on from the start of the chain of segments
+                a0 = theta0[-1][..., :1]
             theta0.append(np.broadcast_to(np.where(np.isfinite(a0), a0, 0.0), batch + (n,)))
             start = np.zeros(n, dtype=bool)
             start[0] = True
@@ -191,12 +214,13 @@ class Experiment(eqx.Module):
             theta_e_start=xp.asarray(np.concatenate(theta0, axis=-1)),
             thermal=temperatures is not None and any(t is not None for t in temperatures),
             segments=tuple(layout),
+            carried=carried,
             base_delay=base,
         )
 
     @classmethod
     def from_plan(cls, plan: Plan, *, delay_samples: float = 0.0) -> Experiment:
-        """The experiment a plan commands, every segment starting from rest.
+        """The experiment a plan commands, every segment starting from rest or continuing the previous one.
 
         Args:
             plan: the plan (checked for feasibility first).
@@ -209,6 +233,8 @@ class Experiment(eqx.Module):
             plan.sample_period,
             temperatures=[seg.temperature for seg in plan.segments],
             delay_samples=delay_samples,
+            continues=[seg.continues for seg in plan.segments],
+            inverter_off=[seg.inverter == "off" for seg in plan.segments],
         )
 
     @property
@@ -216,6 +242,17 @@ class Experiment(eqx.Module):
         """Some sample carries a measured rotor angle (a phase bench file)."""
         return bool(np.any(np.isfinite(np.asarray(self.theta_e))))
 
+
+
+def chain_starts(experiment: Experiment) -> jnp.ndarray:
+    """``segment_start`` without the starts of segments that continue the previous one (``carried``), (M,):
+    where the model's state is reset, and where a delayed command starts from rest (or the first command)."""
+    if not experiment.carried:
+        return experiment.segment_start
+    mask = np.zeros(experiment.num_samples, dtype=bool)
+    for s in experiment.carried:
+        mask[experiment.segments[s][0]] = True
+    return experiment.segment_start & ~jnp.asarray(mask)
 
 
 def _whole_samples(delay_samples: float) -> int:
@@ -304,6 +341,9 @@ def stack_experiments(experiments: list[Experiment]) -> Experiment:
     # The segment layout is shared by the batch; where the datasets' layouts differ, none is used.
     layouts = {e.segments for e in experiments}
     flags["segments"] = layouts.pop() if len(layouts) == 1 else None
+    if len({e.carried for e in experiments}) > 1 or (experiments[0].carried and flags["segments"] is None):
+        raise ValueError("the experiments differ in their segment layout or in which segments continue the previous "
+                         "one; stack experiments of one plan shape only.")
     fields = dataclasses.fields(Experiment)
     statics = {f.name: getattr(experiments[0], f.name) for f in fields if f.metadata.get("static", False)}
     # Field by field, stacked on the host, then one transfer per field (the experiments may hold numpy

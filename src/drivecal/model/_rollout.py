@@ -27,10 +27,10 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.custom_derivatives import SymbolicZero
 
-from ._experiment import Experiment, in_rotor_frame
+from ._experiment import Experiment, chain_starts, in_rotor_frame
 from ._lowered_cache import call as cached_call
+from ._scans import _scan_affine_constant, _scan_linearised_tangents, _scan_states
 from ._steps import _held, _quadratic, _rk4, _with_delay
 from ..physics import DqCoefficients, MotorParams, dead_time_error, dq_coefficients, dq_derivatives_from
 from ..physics import encoder_frame, resistance_at, sensor_offsets, with_dq_offsets
@@ -48,6 +48,7 @@ def rk4_step(
     theta_e_start: Any = 0.0,
     dead_time: bool = False,
     coefficients: DqCoefficients | None = None,
+    conducting: Any = 1.0,
 ) -> tuple:
     """One classical Runge-Kutta step of length ``dt`` (s) with the input held.
 
@@ -58,23 +59,25 @@ def rk4_step(
     inverter's voltage error at the stage's currents and electrical angle
     ``theta_e_start + pole_pairs * theta_m`` (rad) is added to ``v_dq``.
     ``coefficients`` are ``dq_coefficients(motor)`` when already at hand.
+    Where ``conducting`` is 0 the inverter is off: the currents are held at zero
+    and only the rotor moves (a coast-down).
     """
     c = dq_coefficients(motor) if coefficients is None else coefficients
     if speed is None:
         speed = (state[2], state[2], state[2])
 
     def f(x, w_measured):
-        x = (x[0], x[1], jnp.where(speed_input > 0, w_measured, x[2]), x[3])
+        x = (conducting * x[0], conducting * x[1], jnp.where(speed_input > 0, w_measured, x[2]), x[3])
         v = v_dq
         if dead_time:
             e_d, e_q = dead_time_error(x[0], x[1], theta_e_start + motor.pole_pairs * x[3], motor.v_dead,
                                        motor.i_dead)
             v = (v_dq[0] + e_d, v_dq[1] + e_q)
         d = dq_derivatives_from(c, x, v, locked)
-        return d[0], d[1], (1.0 - speed_input) * d[2], d[3]
+        return conducting * d[0], conducting * d[1], (1.0 - speed_input) * d[2], d[3]
 
     out = _rk4(f, tuple(state), dt, tuple(speed))
-    return out[0], out[1], jnp.where(speed_input > 0, speed[2], out[2]), out[3]
+    return (conducting * out[0], conducting * out[1], jnp.where(speed_input > 0, speed[2], out[2]), out[3])
 
 
 def simulate_states(motor: MotorParams, experiment: Experiment, keep: int = 4) -> jnp.ndarray:
@@ -100,10 +103,52 @@ def _rollout(motor: MotorParams, experiment: Experiment, keep: int) -> jnp.ndarr
 
 
 def _segment_states(motor: MotorParams, experiment: Experiment, keep: int) -> list[tuple]:
-    """Per segment of ``experiment.segments``, its first ``keep`` state components, arrays of shape (N_s,)."""
+    """Per segment of ``experiment.segments``, its first ``keep`` state components, arrays of shape (N_s,).
+
+    A segment that the next one continues (``experiment.carried``) is rolled out one sample further:
+    the state it arrives at is where the next one starts (currents, speed, angle).
+    """
     experiment, before = _with_delay(motor, experiment)
-    return [(_free_segment if kind == "free" else _linear_segment)(motor, experiment, start, stop, keep, before)
-            for start, stop, kind in experiment.segments]
+    kinds = {"free": _free_segment, "coast": _coast_segment}
+    out, carry = [], None
+    for s, (start, stop, kind) in enumerate(experiment.segments):
+        extend = s + 1 in experiment.carried
+        x0 = carry if s in experiment.carried else None
+        states = kinds.get(kind, _linear_segment)(motor, experiment, start, stop, 4 if extend else keep, before,
+                                                  x0=x0, extend=extend)
+        if extend:
+            carry = tuple(x[-1] for x in states) + tuple(experiment.initial_state[start, len(states):])
+            states = tuple(x[:-1] for x in states)
+        out.append(tuple(states[:keep]))
+    return out
+
+
+def _start(experiment: Experiment, start: int, x0: tuple | None) -> tuple:
+    """The state ``(i_d, i_q, w_m, theta_m)`` a segment starts from: carried over, or its ``initial_state``."""
+    return tuple(experiment.initial_state[start, i] for i in range(4)) if x0 is None else tuple(x0)
+
+
+def _coast_segment(motor: MotorParams, experiment: Experiment, start: int, stop: int, keep: int,
+                   before: Any = None, x0: tuple | None = None, extend: bool = False) -> tuple:
+    """States over an inverter-off segment (switches open: no current): ``keep`` arrays (N,), N + 1 with ``extend``.
+
+    The currents are zero; the speed coasts on the friction alone (``J dw_m/dt = -B w_m - T_coulomb
+    tanh(w_m / w_coulomb) - T_load``, RK4 per sample), or follows the measured speed where that is an input.
+    """
+    end = stop + 1 if extend else stop
+    i_d, i_q, w0, theta0 = _start(experiment, start, x0)
+    c = dq_coefficients(motor)
+
+    def f(x, _):
+        return dq_derivatives_from(c, (0.0, 0.0, x[0]), (0.0, 0.0), experiment.locked[start])[2:]
+
+    def body(x, _):
+        return _rk4(f, x, experiment.sample_period, (None, None, None)), x
+
+    w, theta = jax.lax.scan(body, (w0, theta0), None, length=end - start)[1]
+    w = jnp.where(experiment.speed_input[start:end] > 0, experiment.speed[start:end, 0], w)
+    zeros = jnp.zeros_like(w) + 0.0 * (i_d + i_q)
+    return (zeros, zeros, w, theta)[:keep]
 
 
 def _segment_coefficients(motor: MotorParams, experiment: Experiment, start: int, stop: int) -> DqCoefficients:
@@ -121,24 +166,27 @@ def _split_coefficients(c: DqCoefficients, thermal: bool) -> tuple[DqCoefficient
 
 
 def _linear_segment(motor: MotorParams, experiment: Experiment, start: int, stop: int, keep: int,
-                    before: Any = None) -> tuple:
+                    before: Any = None, x0: tuple | None = None, extend: bool = False) -> tuple:
     """States over a segment of known speed (locked rotor, or measured speed): ``keep`` arrays of shape (N,).
 
     Only the currents are integrated: the speed at the RK4 stages is an
     input, so one step is affine in the currents, and the angle is the RK4
-    quadrature of the speed (a cumulative sum).
+    quadrature of the speed (a cumulative sum). ``x0``: the state carried over
+    from the previous segment (else ``initial_state``); ``extend``: one sample
+    more (where the next segment starts), shape (N + 1,).
     """
-    x0 = experiment.initial_state[start]
-    speed_input = experiment.speed_input[start:stop] > 0
+    x0 = jnp.stack(_start(experiment, start, x0))
+    end = stop + 1 if extend else stop
+    speed_input = experiment.speed_input[start:end] > 0
     # The speed at the three RK4 stages: measured, or the locked rotor's (constant) one.
-    stages = tuple(jnp.where(speed_input, experiment.speed[start:stop, j], x0[2]) for j in range(3))
-    free = 1.0 - experiment.locked[start:stop - 1]
+    stages = tuple(jnp.where(speed_input, experiment.speed[start:end, j], x0[2]) for j in range(3))
+    free = 1.0 - experiment.locked[start:end - 1]
     w = jnp.concatenate([x0[2:3], stages[2][:-1]])
     increments = (experiment.sample_period / 6.0) * (free * stages[0][:-1] + 2.0 * (free * stages[1][:-1])
                                                      + 2.0 * (free * stages[1][:-1]) + free * stages[2][:-1])
     theta = jnp.concatenate([x0[3:4], x0[3] + jnp.cumsum(increments)])
-    c, per_sample = _split_coefficients(_segment_coefficients(motor, experiment, start, stop), experiment.thermal)
-    volts, params = _voltage_inputs(experiment, start, stop, before, c)
+    c, per_sample = _split_coefficients(_segment_coefficients(motor, experiment, start, end), experiment.thermal)
+    volts, params = _voltage_inputs(experiment, start, end, before, c)
     inputs = volts + stages + per_sample
     if experiment.linearised_tangents:
         scan = _scan_linearised_tangents
@@ -197,16 +245,17 @@ def _step_parts(params: Any, u: tuple, fractional: bool) -> tuple[DqCoefficients
 
 
 def _free_segment(motor: MotorParams, experiment: Experiment, start: int, stop: int, keep: int,
-                  before: Any = None) -> tuple:
+                  before: Any = None, x0: tuple | None = None, extend: bool = False) -> tuple:
     """States over a free segment with simulated speed (w_m * i products: nonlinear): ``keep`` arrays (N,).
 
     The rotor angle is integrated only when it is kept (nothing else reads it
-    without dead time).
+    without dead time). ``x0``, ``extend`` as :func:`_linear_segment`.
     """
     dims = 4 if keep == 4 else 3
-    c, per_sample = _split_coefficients(_segment_coefficients(motor, experiment, start, stop), experiment.thermal)
-    volts, params = _voltage_inputs(experiment, start, stop, before, c)
-    x0 = tuple(experiment.initial_state[start, i] for i in range(dims))
+    end = stop + 1 if extend else stop
+    c, per_sample = _split_coefficients(_segment_coefficients(motor, experiment, start, end), experiment.thermal)
+    volts, params = _voltage_inputs(experiment, start, end, before, c)
+    x0 = _start(experiment, start, x0)[:dims]
     scan = _scan_linearised_tangents if experiment.linearised_tangents else _scan_states
     step = functools.partial(_free_step, experiment.sample_period, experiment.thermal, before is not None)
     states = scan(step, params, x0, volts + per_sample)
@@ -225,146 +274,6 @@ def _free_step(dt: Any, thermal: bool, fractional: bool, params: Any, x: tuple, 
     return _held(f_with, x, dt, (u[0], u[1]), before, (None, None, None))
 
 
-def _scan_states(step: Any, params: Any, x0: tuple, inputs: tuple) -> tuple:
-    """States ``x_0 .. x_(N-1)`` of ``x_(k+1) = step(params, x_k, u_k)``, a tuple of (N,) arrays.
-
-    ``x0`` is a tuple of scalars and ``inputs`` a tuple of (N,) arrays (``u_k``
-    their k-th entries). The parameter-only work is done by the caller, so
-    the loop body is the step's sums of products on scalars.
-    """
-    def body(x, u):
-        return step(params, x, u), x
-
-    return jax.lax.scan(body, x0, inputs)[1]
-
-
-def _scan_affine_constant(step: Any, params: Any, x0: tuple, inputs: tuple, varying: int = 2) -> tuple:
-    """``_scan_states`` of a step affine in the state and the first ``varying`` inputs, the rest constant.
-
-    On a locked rotor (``_constant_linear_part``) the RK4 step of the
-    currents is ``x_(k+1) = A x_k + G v_k + g`` with ``v_k`` the applied
-    voltages: the speed at the stages, the only other input, is the same at
-    every sample. ``A``, ``G`` (the step's derivatives along the state and
-    voltage directions: exact, the step being affine in both) and ``g`` (the
-    step from zero state and voltage) come from the step at the first sample,
-    once per call; the loop body is then a few products per step. The same
-    RK4 recurrence, its terms summed in another order (equal to rounding).
-    Forward mode through it (``vmap``-ped Jacobian sweeps) differentiates
-    these products instead of the four RK4 stages at every step.
-    """
-    dims = len(x0)
-    dtype = inputs[0].dtype
-    constant = tuple(u[0] for u in inputs[varying:])
-
-    def step_at(x, v):
-        return step(params, x, tuple(v) + constant)
-
-    x_zero = tuple(jnp.zeros((), dtype) for _ in range(dims))
-    v_zero = tuple(jnp.zeros((), dtype) for _ in range(varying))
-
-    def unit(j, n):
-        return tuple(jnp.ones((), dtype) if i == j else jnp.zeros((), dtype) for i in range(n))
-
-    g = step_at(x_zero, v_zero)
-    # a[j][i] = A[i, j], b[j][i] = G[i, j]
-    a = [jax.jvp(lambda x: step_at(x, v_zero), (x_zero,), (unit(j, dims),))[1] for j in range(dims)]
-    b = [jax.jvp(lambda v: step_at(x_zero, v), (v_zero,), (unit(j, varying),))[1] for j in range(varying)]
-
-    def body(x, v):
-        x_next = tuple(g[i] + sum(a[j][i] * x[j] for j in range(dims)) + sum(b[j][i] * v[j] for j in range(varying))
-                       for i in range(dims))
-        return x_next, x
-
-    return jax.lax.scan(body, tuple(x0), inputs[:varying])[1]
-
-
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
-def _scan_linearised_tangents(step: Any, params: Any, x0: tuple, inputs: tuple) -> tuple:
-    """``_scan_states`` whose tangents come from the linearised steps, not through the loop.
-
-    Forward mode through a scan evaluates the step's derivative inside the
-    loop; with 4 tangents the loop body moves several kilobytes per step and
-    XLA:CPU runs it op by op (~3 us a step). Here the value is the plain scan
-    (a small loop XLA compiles whole), and the tangents solve the linearised
-    recurrence ``dx_(k+1) = A_k dx_k + b_k``: ``A_k = d step / d x`` and
-    ``b_k``, the step's derivative along the parameters' and inputs'
-    tangents, are built for every sample at once (vectorised, no loop) at the
-    states of the value, then a d x d recurrence runs as another small loop.
-    The same derivative as forward mode through the loop (chain rule in
-    another order: ~1e-15 relative), ~5x faster for one motor. In large
-    ``vmap``-ped batches the arrays of every ``A_k`` and ``b_k`` cost more
-    memory traffic than they save: ``Experiment.linearised_tangents`` picks.
-    """
-    return _scan_states(step, params, x0, inputs)
-
-
-@functools.partial(_scan_linearised_tangents.defjvp, symbolic_zeros=True)
-def _scan_linearised_tangents_jvp(step, primals, tangents):
-    params, x0, inputs = primals
-    d_params, d_x0, d_inputs = tangents
-    xs = _scan_linearised_tangents(step, params, x0, inputs)
-    dims = len(x0)
-    dx0 = jnp.stack([jnp.zeros(()) if _is_zero(t) else t for t in d_x0])
-    if xs[0].shape[0] == 1:
-        return xs, tuple(dx0[i:i + 1] for i in range(dims))
-    # The step from the last sample leads out of the segment: only x_0 .. x_(N-1) are wanted.
-    x_k = tuple(x[:-1] for x in xs)
-    u_k = tuple(u[:-1] for u in inputs)
-    du_k = tuple(du if _is_zero(du) else du[:-1] for du in d_inputs)
-
-    def step_k(x):
-        return step(params, x, u_k)
-
-    # A_k column by column, the unit directions as one vmapped axis: shape (d, d, N-1), A[i, j, k].
-    basis = jnp.eye(dims)
-    maps = jnp.stack(jax.vmap(lambda e: jax.jvp(step_k, (x_k,), (tuple(jnp.broadcast_to(e[i], x_k[0].shape)
-                                                                       for i in range(dims)),))[1])(basis))
-    forcing = jnp.stack(_jvp_nonzero(lambda p, u: step(p, x_k, u), (params, u_k), (d_params, du_k), x_k))
-    # Fold dx_0 into the first step: the recurrence from zero then gives dx_1 .. dx_(N-1).
-    forcing = forcing.at[:, 0].add(maps[:, :, 0] @ dx0)
-    dxs = jnp.concatenate([dx0[:, None], _solve_linear_recurrence(maps, forcing)], axis=1)
-    return xs, tuple(dxs[i] for i in range(dims))
-
-
-def _is_zero(tangent: Any) -> bool:
-    return isinstance(tangent, SymbolicZero)
-
-
-def _jvp_nonzero(f: Any, primals: tuple, tangents: tuple, like: tuple) -> tuple:
-    """``jax.jvp(f, primals, tangents)[1]`` over the leaves whose tangent is not a symbolic zero.
-
-    Zeros where every tangent is zero (shaped as ``like``).
-    """
-    leaves, tree = jax.tree_util.tree_flatten(primals)
-    d_leaves = jax.tree_util.tree_leaves(tangents, is_leaf=_is_zero)
-    active = [i for i, t in enumerate(d_leaves) if not _is_zero(t)]
-    if not active:
-        return tuple(jnp.zeros_like(x) for x in like)
-
-    def g(*values):
-        full = list(leaves)
-        for i, v in zip(active, values):
-            full[i] = v
-        return f(*jax.tree_util.tree_unflatten(tree, full))
-
-    return jax.jvp(g, tuple(leaves[i] for i in active), tuple(d_leaves[i] for i in active))[1]
-
-
-def _solve_linear_recurrence(maps: jnp.ndarray, offsets: jnp.ndarray) -> jnp.ndarray:
-    """``x_1 .. x_K`` of ``x_(k+1) = maps[:, :, k] @ x_k + offsets[:, k]`` from ``x_0 = 0``, shape (d, K).
-
-    ``maps`` (d, d, K), ``offsets`` (d, K). A sequential scan: its body (a
-    d x d product) moves well under a kilobyte per step, which XLA:CPU runs as
-    one compiled loop; measured faster here than a ``jax.lax.associative_scan``
-    of the affine maps (log-depth, but many small operations per level).
-    """
-    def body(x, step):
-        x_next = step[0] @ x + step[1]
-        return x_next, x_next
-
-    return jax.lax.scan(body, jnp.zeros(maps.shape[0]), (jnp.moveaxis(maps, 2, 0), offsets.T))[1].T
-
-
 def _rollout_sequential(motor: MotorParams, experiment: Experiment, keep: int) -> jnp.ndarray:
     """``_rollout`` as one sequential scan over all M samples, resetting at segment starts.
 
@@ -378,8 +287,9 @@ def _rollout_sequential(motor: MotorParams, experiment: Experiment, keep: int) -
     v_before, fraction = before if before is not None else (experiment.voltages, 0.0)
 
     def step(x, sample):
-        v_dq, v_earlier, locked, start, x0, speed, speed_input, temperature, theta_e_start = sample
+        v_dq, v_earlier, locked, start, x0, speed, speed_input, temperature, theta_e_start, conducting = sample
         x = tuple(jnp.where(start, x0[i], x[i]) for i in range(4))
+        x = (conducting * x[0], conducting * x[1], x[2], x[3])
         # R follows the winding temperature sample by sample (NaN: not recorded).
         warm = motor.replace(R=resistance_at(motor, temperature)) if experiment.thermal else motor
         c = dq_coefficients(warm) if experiment.thermal else coefficients
@@ -398,23 +308,34 @@ def _rollout_sequential(motor: MotorParams, experiment: Experiment, keep: int) -
                 a, b = a0 + (b0 - a0) * j / substeps, a0 + (b0 - a0) * (j + 1) / substeps
                 stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
                 x_next = rk4_step(x_next, v, warm, locked, (b - a) * dt, stages, speed_input,
-                                  theta_e_start=theta_e_start, dead_time=experiment.dead_time, coefficients=c)
+                                  theta_e_start=theta_e_start, dead_time=experiment.dead_time, coefficients=c,
+                                  conducting=conducting)
         return x_next, jnp.stack(x[:keep])
 
     inputs = (
         experiment.voltages,
         v_before,
         experiment.locked,
-        experiment.segment_start,
+        chain_starts(experiment),  # a continuing segment carries the state on
         experiment.initial_state,
         experiment.speed,
         experiment.speed_input,
         experiment.temperature,
         experiment.theta_e_start,
+        jnp.asarray(_conducting(experiment)),
     )
     x_init = tuple(experiment.initial_state[0, i] for i in range(4))
     _, states = jax.lax.scan(step, x_init, inputs)
     return states
+
+
+def _conducting(experiment: Experiment) -> np.ndarray:
+    """1.0 where the inverter conducts, 0.0 in its inverter-off ("coast") segments, shape (M,) (static)."""
+    on = np.ones(experiment.num_samples)
+    for start, stop, kind in experiment.segments or ():
+        if kind == "coast":
+            on[start:stop] = 0.0
+    return on
 
 
 def predict_currents(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:

@@ -15,7 +15,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from ._experiment import Experiment
+from ._experiment import Experiment, chain_starts
 from ..physics import MotorParams
 
 
@@ -60,7 +60,7 @@ def delay_inputs(motor: MotorParams, experiment: Experiment) -> tuple[Any, Any, 
     fraction = extra - whole
     v = experiment.voltages
     k = jnp.arange(v.shape[0])
-    start = experiment.segment_start
+    start = chain_starts(experiment)  # a continuing segment's delayed command comes from the previous one
     first = jax.lax.cummax(jnp.where(start, k, 0))
     last = jax.lax.cummin(jnp.where(jnp.concatenate([start[1:], jnp.ones(1, bool)]), k, v.shape[0] - 1),
                           reverse=True)
