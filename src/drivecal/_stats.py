@@ -9,6 +9,7 @@ are bit for bit those of ``scipy.stats`` (tests/test_stats.py checks it).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -71,3 +72,15 @@ def robust_z(values: Any) -> tuple[np.ndarray, float, float]:
 def next_power_of_two(n: int, minimum: int = 1) -> int:
     """The smallest power of two at or above ``n`` and ``minimum``: a batch size shared by many, so few compile."""
     return 1 << (max(int(n), int(minimum), 1) - 1).bit_length()
+
+
+def noise_level(x: np.ndarray, axis: int = 0) -> Any:
+    """Robust sensor-noise estimate (the samples' unit) from second differences (MAD), insensitive to slow signals.
+
+    Samples lie along ``axis``: shape (N,) gives a float, more axes one level per series (the others).
+    """
+    if x.shape[axis] < 4:
+        return 0.0 if x.ndim == 1 else np.zeros(np.delete(x.shape, axis))
+    d2 = np.diff(x, 2, axis=axis)
+    level = fast_median(np.abs(d2 - np.expand_dims(fast_median(d2, axis), axis)), axis) / 0.6745 / math.sqrt(6.0)
+    return float(level) if x.ndim == 1 else level

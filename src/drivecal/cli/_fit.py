@@ -42,9 +42,15 @@ def _fit_table(cal: Calibration) -> Table:
 @click.command("fit")
 @click.argument("bench_path", metavar="BENCH", type=click.Path(dir_okay=False))
 @_motor_option
-@click.option("--measured-speed/--simulated-speed", default=True, show_default=True,
-              help="On free segments with a w_m column, use the measured speed as an input (J and B not needed); "
-                   "--simulated-speed integrates the speed from J and B of the motor file instead.")
+@click.option("--measured-speed/--simulated-speed", default=None,
+              help="On free segments with a w_m column, use the measured speed as an input (J and B not needed; "
+                   "--speed input); --simulated-speed integrates the speed from J and B of the motor file "
+                   "instead (--speed ignore).")
+@click.option("--speed", "speed_mode", type=click.Choice(["input", "output", "ignore"]), default=None,
+              help="What a measured w_m is: an input of the electrical equations, a second measured output (the "
+                   "speed simulated from J, B and the friction and fitted to it, weighed by the noise of each "
+                   "sensor: the motor file's current_noise and speed_noise, else estimated), or ignored. "
+                   "Default: output when J, B, T_coulomb or T_load are estimated, else input.")
 @click.option("--noise", type=_Positive(), default=None,
               help="The current sensor's noise standard deviation [A], if known: a sigma_hat well above it "
                    "is reported as model mismatch. Without it only the whiteness of the residuals is judged.")
@@ -64,8 +70,8 @@ def _fit_table(cal: Calibration) -> Table:
                    "must exist).")
 @_format_option
 @click.option("--json", "as_json", is_flag=True, help="Print the result JSON on stdout instead of the table.")
-def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_samples, effects, out_dir, format_path,
-                as_json):
+def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estimate, delay_samples, effects, out_dir,
+                format_path, as_json):
     """Calibrate R, Ld, Lq, lambda_m from a bench file or log (CSV, Parquet, MAT, MDF4, TDMS, HDF5).
 
     \b
@@ -120,7 +126,9 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
         chosen = chosen if not isinstance(chosen, tuple) else tuple(e for e in chosen if e != "delay")
     prior = motor_file.motor
     bench = load_bench(bench_path, pole_pairs=float(prior.pole_pairs), nominal_R=float(prior.R), format=format_path)
-    experiment = bench.experiment(measured_speed=measured_speed, delay_samples=motor_file.delay_samples)
+    speed_mode = _speed_mode(speed_mode, measured_speed, names)
+    experiment = bench.experiment(speed=speed_mode, delay_samples=motor_file.delay_samples,
+                                  current_noise=motor_file.current_noise, speed_noise=motor_file.speed_noise)
     if motor_file.estimate is not None:
         check_requested(motor_file.names, experiment, bench_path)
     console = _console(as_json)
@@ -130,7 +138,7 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
         cal = selection.calibration
         saturation = check_saturation(bench, prior)
         payload = build_result(cal, bench, experiment=experiment, noise_sigma=noise, input_path=bench_path,
-                               motor_file=motor_path, measured_speed=measured_speed and bench.has_measured_speed,
+                               motor_file=motor_path, measured_speed=speed_mode == "input" and bench.has_measured_speed,
                                saturation=saturation.to_dict() if saturation.tested else None,
                                effects=selection.to_dict(), tolerance=motor_file.tolerance)
         if out_dir is not None:
@@ -143,6 +151,9 @@ def fit_command(bench_path, motor_path, measured_speed, noise, estimate, delay_s
     ident = cal.identifiability
     verdict = "[green]identifiable[/green]" if ident.identifiable else "[red]NOT fully identifiable[/red]"
     speed = "measured speed as input" if payload["measured_speed"] else "speed simulated from J and B"
+    if experiment.speed_outputs:
+        speed = (f"measured speed as a second output (weight {float(experiment.speed_weight):.3g} A per rad/s: "
+                 "current noise over speed noise)")
     console.print(f"identifiability: rank {ident.rank}/{len(ident.names)}, condition number "
                   f"{ident.condition_number:.3g} -> {verdict}; {speed}")
     for name, why in ident.reasons.items():
@@ -185,6 +196,19 @@ def _print_spec(spec: dict, console) -> None:
         console.print(f"  {p['name']}: {p['outcome']} ({interval} {p['unit']}; tolerance {escape(p['tolerance'])})")
     for line in spec["advice"]:
         console.print(f"  [yellow]{escape(line)}[/yellow]")
+
+
+def _speed_mode(speed_mode, measured_speed, names) -> str:
+    """--speed, else the legacy --measured-speed/--simulated-speed, else output when mechanics are estimated."""
+    from ..physics import MECHANICAL
+
+    if speed_mode is not None:
+        if measured_speed is not None:
+            raise click.UsageError("give --speed or --measured-speed/--simulated-speed, not both")
+        return speed_mode
+    if measured_speed is not None:
+        return "input" if measured_speed else "ignore"
+    return "output" if any(n in MECHANICAL for n in names) else "input"
 
 
 def _effects_line(selection) -> str:

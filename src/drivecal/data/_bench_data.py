@@ -17,6 +17,7 @@ in :mod:`._checks`.
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,7 @@ import pandas as pd
 from ..errors import DataError
 from ..model import Experiment
 from ..physics import dq_to_abc
+from .._stats import noise_level
 from .._io import atomic_path
 from ._readers import TABLE_FORMATS
 
@@ -105,19 +107,51 @@ class BenchData:
         """Some free segment carries a measured speed ``w_m``."""
         return any(s.w_m is not None and not s.locked for s in self.segments)
 
-    def experiment(self, measured_speed: bool = True, delay_samples: float = 0.0, host: bool = False) -> Experiment:
+    def experiment(self, measured_speed: bool = True, delay_samples: float = 0.0, host: bool = False, *,
+                   speed: str | None = None, current_noise: float | None = None,
+                   speed_noise: float | None = None) -> Experiment:
         """The applied voltages and rotor conditions, for the forward model.
 
         Args:
             measured_speed: on free segments with a measured ``w_m``, use it as
                 an input of the electrical equations (J and B then play no
                 part); when False the speed is simulated from J and B.
+            speed: what a measured ``w_m`` is, replacing ``measured_speed``: "input" (as
+                ``measured_speed=True``), "ignore" (as False), or "output": a second measured
+                output, the speed simulated from J, B and the friction and compared with it,
+                its residuals weighed by the noise ratio (:meth:`noise_levels`).
+            current_noise, speed_noise: the sensors' noise (A, rad/s) where known (the motor
+                file's); else estimated from the samples (:meth:`noise_levels`).
             delay_samples: the inverter's PWM/computation delay (samples): the
                 recorded command k acts at sample k + delay_samples; its whole samples are
                 applied here, a fraction by the model (``MotorParams.delay``).
             host: numpy arrays (see ``Experiment.from_segments``).
         """
-        return _experiment([self], measured_speed, delay_samples, host, stacked=False)
+        if speed not in (None, "input", "output", "ignore"):
+            raise ValueError(f"speed must be 'input', 'output' or 'ignore', got {speed!r}")
+        mode = speed or ("input" if measured_speed else "ignore")
+        weight = 1.0
+        if mode == "output" and self.has_measured_speed:
+            sigma_i, sigma_w = self.noise_levels()
+            weight = (current_noise or sigma_i) / (speed_noise or sigma_w)
+        return _experiment([self], mode != "ignore", delay_samples, host, stacked=False,
+                           speed_output=mode == "output", speed_weight=weight)
+
+    def noise_levels(self) -> tuple[float, float]:
+        """The current and speed sensors' noise, estimated from the samples: ``(sigma_i, sigma_w)`` (A, rad/s).
+
+        Each is the median over segments (and over i_d, i_q) of the robust second-difference
+        estimate (``_stats.noise_level``), which slow signals barely touch; the speed's from the
+        free segments that measured it. A noise-free speed gets a floor of 1e-9 of its range
+        (1e-12 rad/s at least), so the weight stays finite.
+        """
+        sigma_i = float(np.median([noise_level(s.currents, axis=0) for s in self.segments]))
+        speeds = [s.w_m for s in self.segments if s.w_m is not None and not s.locked]
+        if not speeds:
+            return sigma_i, math.nan
+        span = max(float(np.max(np.abs(w))) for w in speeds)
+        sigma_w = float(np.median([noise_level(w) for w in speeds]))
+        return sigma_i, max(sigma_w, 1e-9 * span, 1e-12)
 
     def with_currents(self, currents: np.ndarray) -> BenchData:
         """The same run with the currents replaced by ``currents`` (A), shape (M, 2)."""
@@ -213,7 +247,7 @@ def stacked_experiment(benches: list[BenchData], measured_speed: bool = True, de
 
 
 def _experiment(benches: list[BenchData], measured_speed: bool, delay_samples: float, host: bool,
-                stacked: bool) -> Experiment:
+                stacked: bool, speed_output: bool = False, speed_weight: float = 1.0) -> Experiment:
     join = np.stack if stacked else (lambda arrays: arrays[0])
 
     def differ(seg):
@@ -247,4 +281,6 @@ def _experiment(benches: list[BenchData], measured_speed: bool, delay_samples: f
         host=host,
         continues=[seg.continues for seg in first],
         inverter_off=[seg.inverter_off for seg in first],
+        speed_output=speed_output,
+        speed_weight=speed_weight,
     )

@@ -14,7 +14,6 @@ in one place (:meth:`_Checked.refusal`).
 from __future__ import annotations
 
 import dataclasses
-import math
 from pathlib import Path
 from collections.abc import Hashable
 from typing import Any
@@ -23,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import DataError
-from .._stats import fast_median
+from .._stats import fast_median, noise_level
 from ._bench_data import BenchData, SegmentData
 from ._phase import check_pole_pairs, phase_to_dq
 from ._format_file import BenchFormat, load_format
@@ -227,18 +226,6 @@ def _locked_flag(lock: np.ndarray) -> tuple[Any, Any]:
     return (lock.min(axis=-1) == lock.max(axis=-1)) & ((first == 0.0) | (first == 1.0)), first == 1.0
 
 
-def _noise_level(x: np.ndarray, axis: int = 0) -> Any:
-    """Robust sensor-noise estimate (A) from second differences (MAD), insensitive to slow signals.
-
-    Samples lie along ``axis``: shape (N,) gives a float, more axes one level per series (the others).
-    """
-    if x.shape[axis] < 4:
-        return 0.0 if x.ndim == 1 else np.zeros(np.delete(x.shape, axis))
-    d2 = np.diff(x, 2, axis=axis)
-    level = fast_median(np.abs(d2 - np.expand_dims(fast_median(d2, axis), axis)), axis) / 0.6745 / math.sqrt(6.0)
-    return float(level) if x.ndim == 1 else level
-
-
 def _starts_at_rest(currents: np.ndarray, w_m: np.ndarray | None, locked: Any) -> Any:
     """Whether a segment starts from rest: its first currents ``(..., N, 2)`` A (and, unless ``locked``,
     speed ``(..., N)`` rad/s) within five noise levels of zero.
@@ -248,10 +235,10 @@ def _starts_at_rest(currents: np.ndarray, w_m: np.ndarray | None, locked: Any) -
     1000-sample spin-up cost ~0.1 ms a file, which a fleet pays per motor.
     """
     window = slice(0, AT_REST_NOISE_SAMPLES)
-    noise = np.maximum(np.max(_noise_level(currents[..., window, :], axis=-2), axis=-1), 1e-6)
+    noise = np.maximum(np.max(noise_level(currents[..., window, :], axis=-2), axis=-1), 1e-6)
     at_rest = np.all(np.abs(currents[..., 0, :]) <= 5.0 * np.expand_dims(noise, -1), axis=-1)
     if w_m is not None and not np.all(locked):  # a locked rotor's speed is not looked at
-        still = np.abs(w_m[..., 0]) <= np.maximum(5.0 * _noise_level(w_m[..., window], axis=-1), 1e-6)
+        still = np.abs(w_m[..., 0]) <= np.maximum(5.0 * noise_level(w_m[..., window], axis=-1), 1e-6)
         at_rest = at_rest & (locked | still)
     return at_rest
 

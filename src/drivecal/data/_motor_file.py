@@ -47,6 +47,8 @@ class MotorSpec(StrictModel):
     T_ref: quantity("temperature") = float(DEFAULT_MOTOR.T_ref)
     encoder_offset: quantity("rotor angle") = 0.0
     delay_samples: float = Field(default=0.0, ge=0, le=100, allow_inf_nan=False)
+    current_noise: quantity("current") | None = None
+    speed_noise: quantity("speed") | None = None
     estimate: list[Literal["R", "Ld", "Lq", "lambda_m", "delay", "v_dead", "i_dead", "offset_d", "offset_q",
                            "offset_a", "offset_b", "alpha_R", "encoder_offset", "J", "B", "T_coulomb",
                            "T_load"]] | None = None
@@ -61,6 +63,9 @@ class MotorFile(BaseModel):
             lambda_m, holding any the data cannot identify at the nominal
             value". Bench effects (v_dead, offsets, alpha_R) are estimated
             only when listed here.
+        current_noise, speed_noise: the current and speed sensors' noise standard deviations (A,
+            rad/s) where the file states them: they weigh a measured speed against the currents
+            when the speed is a measured output (``--speed output``); else estimated from the data.
         delay_samples: the inverter's nominal PWM/computation delay (samples, may be
             fractional: 0.5, 1.5 where the PWM updates mid-period); also ``motor.delay``.
         source: the file path, for messages.
@@ -74,6 +79,8 @@ class MotorFile(BaseModel):
     motor: MotorParams
     estimate: tuple[str, ...] | None = None
     delay_samples: float = 0.0
+    current_noise: float | None = None
+    speed_noise: float | None = None
     source: str = "default motor"
     defaulted: tuple[str, ...] = ()
     tolerance: dict[str, Tolerance] = Field(default_factory=dict)
@@ -107,7 +114,11 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
     if not 1 <= spec.pole_pairs <= 1000:
         shown = spec.pole_pairs if abs(spec.pole_pairs) < 10**12 else "a huge number"
         raise DrivecalError(f"{source}: 'pole_pairs' must be a whole number from 1 to 1000, got {shown}.")
-    values = spec.model_dump(exclude={"estimate", "delay_samples"})
+    values = spec.model_dump(exclude={"estimate", "delay_samples", "current_noise", "speed_noise"})
+    for key in ("current_noise", "speed_noise"):
+        value = getattr(spec, key)
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise DrivecalError(f"{source}: '{key}' is a noise standard deviation and must be positive, got {value!r}.")
     signed = ("T_load", "offset_d", "offset_q", "offset_a", "offset_b", "T_ref", "encoder_offset")
     for name, value in values.items():
         if not math.isfinite(value):
@@ -125,7 +136,8 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
         raise DrivecalError(f"{source}: 'estimate' is empty; list at least one of R, Ld, Lq, lambda_m.")
     defaulted = tuple(k for k in REQUIRED_KEYS if k not in data)
     tolerance = {} if tolerance_table is None else tolerances_of(tolerance_table, motor.all_values(), source)
-    return MotorFile(motor=motor, estimate=estimate, delay_samples=spec.delay_samples, source=source,
+    return MotorFile(motor=motor, estimate=estimate, delay_samples=spec.delay_samples, current_noise=spec.current_noise,
+                     speed_noise=spec.speed_noise, source=source,
                      defaulted=defaulted, tolerance=tolerance)
 
 

@@ -164,6 +164,7 @@ def fit(
     options: FitOptions = FitOptions(),
     measured_speed: bool = True,
     delay_samples: float | None = None,
+    speed: str | None = None,
 ) -> Calibration:
     """Calibrate a motor from bench data.
 
@@ -180,12 +181,15 @@ def fit(
             an input so J and B play no part (see ``BenchData.experiment``).
         delay_samples: the inverter's nominal PWM/computation delay (samples);
             default ``prior.delay``. Estimated when ``"delay"`` is in ``names``.
+        speed: what a measured ``w_m`` is, replacing ``measured_speed``: "input", "output"
+            (a second measured output, weighed by the sensors' noise estimated from the data)
+            or "ignore" (see ``BenchData.experiment``).
     """
     if delay_samples is not None:
         prior = prior.replace(delay=float(delay_samples))
     delay_samples = float(prior.delay)
     return fit_currents(
-        bench.experiment(measured_speed=measured_speed, delay_samples=delay_samples),
+        bench.experiment(measured_speed=measured_speed, delay_samples=delay_samples, speed=speed),
         bench.currents,
         prior,
         initial=initial,

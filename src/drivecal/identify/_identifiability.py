@@ -27,7 +27,7 @@ import numpy as np
 from ..model import cached_call
 from .._stats import t_ppf
 from ..errors import DrivecalError
-from ..model import Experiment, model_experiment, predict_currents, simulate_states
+from ..model import Experiment, model_experiment, predict_current_parts, predict_currents, simulate_states
 from ..physics import ADDITIVE_SCALE, ESTIMATED, MECHANICAL, MotorParams, dq_to_abc, search_scale
 
 #: A parameter whose relative sensitivity is below this fraction of the
@@ -49,7 +49,9 @@ WEAK_RELATIVE_CI = 0.5
 def sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...] = ESTIMATED) -> jnp.ndarray:
     """``d(i_d, i_q at every sample)/d(theta)``, shape (2M, len(names)), A per unit of theta.
 
-    Rows alternate i_d, i_q sample by sample (the flattening of (M, 2)).
+    Rows alternate i_d, i_q sample by sample (the flattening of (M, 2)). With the measured speed
+    as an output (``Experiment.speed_outputs``) the weighted speed's rows follow (K more rows, in
+    the currents' units: ``speed_weight`` A per rad/s).
     """
     return cached_call(_sensitivity_jacobian, "sensitivity_jacobian", motor, experiment, names=tuple(names))
 
@@ -59,7 +61,11 @@ def _sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tup
     theta = motor.vector(names)
 
     def currents(th):
-        return predict_currents(motor.with_vector(names, th), experiment).reshape(-1)
+        rows = predict_currents(motor.with_vector(names, th), experiment).reshape(-1)
+        if not experiment.speed_outputs:
+            return rows
+        speed = predict_current_parts(motor.with_vector(names, th), experiment)[-len(experiment.speed_outputs):]
+        return jnp.concatenate([rows, *speed])
 
     return jax.jacfwd(currents)(theta)
 
@@ -247,7 +253,7 @@ def structural_reason(name: str, experiment: Experiment) -> str | None:
         if locked.all():
             return "no free-rotor segment (the mechanics act only where the rotor turns)"
         if np.all(np.asarray(experiment.speed_input)[~locked] > 0.5):
-            return ("the measured speed drives the model in every free segment (--measured-speed), so the "
+            return ("the measured speed drives the model in every free segment (--speed input), so the "
                     "mechanics never reach the currents")
     return None
 
@@ -364,8 +370,9 @@ def check_requested(names: tuple[str, ...], experiment: Experiment, source: str)
                 "offset_b": "give a phase bench file (i_a, i_b, v_a, v_b, theta_e) or estimate offset_d/offset_q",
                 "encoder_offset": "give the phase bench file (i_a, i_b, v_a, v_b with theta_e or theta_m) or set the "
                                   "encoder's zero in the drive and record again",
-                **dict.fromkeys(MECHANICAL, "fit with --simulated-speed on a run with a free segment (a spin-up "
-                                            "followed by a coast-down shows friction best)"),
+                **dict.fromkeys(MECHANICAL, "fit with --speed output (the measured speed as a second output) or "
+                                            "--speed ignore, on a run with a free segment (a spin-up followed by a "
+                                            "coast-down shows friction best)"),
             }[name]
             raise DrivecalError(
                 f"{source}: {name} is requested ('estimate' in the motor file) but the run has {reason}; "

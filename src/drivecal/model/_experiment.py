@@ -69,6 +69,13 @@ class Experiment(eqx.Module):
             previous one (static): their state at the first sample is where the
             previous segment's rollout arrived, not ``initial_state``, and the
             delayed command carries over (:func:`chain_starts`).
+        speed_outputs: the indices of the free segments whose measured speed is
+            a second measured output (static; its samples in ``speed[:, 0]``):
+            the speed is simulated from J, B and the friction, and the fit
+            weighs its residuals with ``speed_weight``.
+        speed_weight: current noise over speed noise (A per rad/s; one per
+            dataset of a stack): the speed residuals times it share the
+            currents' scale, so one sigma_hat and one covariance serve both.
         base_delay: the whole samples of inverter delay already applied in
             ``voltages`` (static): row k is the command of sample k - base_delay.
         fractional_delay: the model applies the rest of the motor's ``delay``
@@ -101,6 +108,8 @@ class Experiment(eqx.Module):
     dead_time_substeps: int = eqx.field(static=True, default=4)
     segments: tuple[tuple[int, int, str], ...] | None = eqx.field(static=True, default=None)
     carried: tuple[int, ...] = eqx.field(static=True, default=())
+    speed_outputs: tuple[int, ...] = eqx.field(static=True, default=())
+    speed_weight: jnp.ndarray = 1.0
     base_delay: int = eqx.field(static=True, default=0)
     fractional_delay: bool = eqx.field(static=True, default=False)
     linearised_tangents: bool = eqx.field(static=True, default=True)
@@ -124,6 +133,8 @@ class Experiment(eqx.Module):
         host: bool = False,
         continues: list[bool] | None = None,
         inverter_off: list[bool] | None = None,
+        speed_output: bool = False,
+        speed_weight: float | np.ndarray = 1.0,
     ) -> Experiment:
         """Lay segments end to end.
 
@@ -154,15 +165,20 @@ class Experiment(eqx.Module):
                 and the delayed command carry over; ``Experiment.carried``).
             inverter_off: per segment, whether the inverter's switches are open (kind
                 "coast": no current flows; the voltages are not applied).
+            speed_output: the measured ``speeds`` of free segments are a second measured
+                output, not an input (``speed_outputs``), weighted by ``speed_weight``
+                (A per rad/s).
         """
         base = _whole_samples(delay_samples)
         batch = np.shape(voltages[0])[:-2]  # leading axes: one experiment per dataset (see stack_experiments)
         applied, starts, lock, x0, speed, use, temp, theta, theta0 = [], [], [], [], [], [], [], [], []
         layout, at = [], 0
         carried = tuple(s for s in range(1, len(voltages)) if continues is not None and continues[s])
+        outputs = tuple(s for s in range(len(voltages))
+                        if speed_output and speeds is not None and speeds[s] is not None and not locked[s])
         for s, v in enumerate(voltages):
             n = v.shape[-2]
-            measured = speeds is not None and speeds[s] is not None
+            measured = speeds is not None and speeds[s] is not None and s not in outputs
             off = inverter_off is not None and inverter_off[s]
             layout.append((at, at + n, "coast" if off else "measured" if measured else "locked" if locked[s] else "free"))
             at += n
@@ -194,6 +210,9 @@ class Experiment(eqx.Module):
             if w is None:
                 speed.append(np.zeros(batch + (n, 3)))
                 use.append(np.zeros(batch + (n,)))
+            elif s in outputs:  # measured, not used: the model simulates the speed and is compared with it
+                speed.append(np.broadcast_to(np.asarray(w, dtype=float)[..., None], batch + (n, 3)))
+                use.append(np.zeros(batch + (n,)))
             else:
                 w = np.asarray(w, dtype=float)
                 speed.append(_speed_at_stages(w))
@@ -215,6 +234,8 @@ class Experiment(eqx.Module):
             thermal=temperatures is not None and any(t is not None for t in temperatures),
             segments=tuple(layout),
             carried=carried,
+            speed_outputs=outputs,
+            speed_weight=xp.asarray(np.broadcast_to(np.asarray(speed_weight, dtype=float), batch)),
             base_delay=base,
         )
 
@@ -341,7 +362,8 @@ def stack_experiments(experiments: list[Experiment]) -> Experiment:
     # The segment layout is shared by the batch; where the datasets' layouts differ, none is used.
     layouts = {e.segments for e in experiments}
     flags["segments"] = layouts.pop() if len(layouts) == 1 else None
-    if len({e.carried for e in experiments}) > 1 or (experiments[0].carried and flags["segments"] is None):
+    if (len({(e.carried, e.speed_outputs) for e in experiments}) > 1
+            or ((experiments[0].carried or experiments[0].speed_outputs) and flags["segments"] is None)):
         raise ValueError("the experiments differ in their segment layout or in which segments continue the previous "
                          "one; stack experiments of one plan shape only.")
     fields = dataclasses.fields(Experiment)

@@ -366,24 +366,43 @@ def predict_current_parts(motor: MotorParams, experiment: Experiment) -> tuple:
     motor costs a transposing copy of every Jacobian sweep. One part pair
     over all M samples where the rollout is one scan or the phase offsets
     need the angle. :func:`current_parts` splits measured currents alike.
+    With the measured speed as an output (``Experiment.speed_outputs``) the
+    predicted speed of each such segment follows, times ``speed_weight``
+    (A per rad/s): the residuals of currents and speed then share one scale.
     """
     if not _segmented(experiment):
-        predicted = predict_currents(motor, experiment)
-        return predicted[:, 0], predicted[:, 1]
-    return tuple(x for i_d, i_q in _segment_states(motor, experiment, 2) for x in with_dq_offsets(i_d, i_q, motor))
+        if not experiment.speed_outputs:
+            predicted = predict_currents(motor, experiment)
+            return predicted[:, 0], predicted[:, 1]
+        states = _rollout(motor, in_rotor_frame(motor, experiment), 4)
+        predicted = measured_currents(states, motor, experiment)
+        return (predicted[:, 0], predicted[:, 1]) + _speed_parts(experiment, states[:, 2])
+    keep = 3 if experiment.speed_outputs else 2
+    states = _segment_states(motor, experiment, keep)
+    currents = tuple(x for state in states for x in with_dq_offsets(state[0], state[1], motor))
+    return currents + tuple(experiment.speed_weight * states[s][2] for s in experiment.speed_outputs)
+
+
+def _speed_parts(experiment: Experiment, speed: Any) -> tuple:
+    """The speed (rad/s, shape (M,)) of each segment whose measured speed is an output, times ``speed_weight``."""
+    return tuple(experiment.speed_weight * speed[experiment.segments[s][0]:experiment.segments[s][1]]
+                 for s in experiment.speed_outputs)
 
 
 def current_parts(experiment: Experiment, currents: Any) -> tuple:
-    """Measured ``[i_d, i_q]`` (A), shape (M, 2), split as :func:`predict_current_parts` splits its prediction."""
+    """Measured ``[i_d, i_q]`` (A), shape (M, 2), split as :func:`predict_current_parts` splits its prediction
+    (and the measured speed of the segments where it is an output, weighted alike)."""
+    speed = _speed_parts(experiment, experiment.speed[:, 0])
     if not _segmented(experiment):
-        return currents[:, 0], currents[:, 1]
-    return tuple(currents[start:stop, j] for start, stop, _ in experiment.segments for j in (0, 1))
+        return (currents[:, 0], currents[:, 1]) + speed
+    return tuple(currents[start:stop, j] for start, stop, _ in experiment.segments for j in (0, 1)) + speed
 
 
 def join_current_parts(experiment: Experiment, parts: tuple) -> Any:
-    """Parts as :func:`current_parts` splits them, laid end to end again: shape (M, 2) (A)."""
+    """Parts as :func:`current_parts` splits them, laid end to end again: shape (M, 2) (A); the speed parts
+    (measured speed as an output) are left out."""
     if not _segmented(experiment):
-        return jnp.stack(parts, axis=1)
+        return jnp.stack(parts[:2], axis=1)
     pairs = [jnp.stack(parts[2 * s : 2 * s + 2], axis=1) for s in range(len(experiment.segments))]
     return pairs[0] if len(pairs) == 1 else jnp.concatenate(pairs, axis=0)
 
