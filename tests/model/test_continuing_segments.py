@@ -101,3 +101,14 @@ def test_spin_up_and_braking_recorded_as_two_segments_calibrate_like_one():
     z = (fits[1].estimate - np.asarray(MOTOR.vector(names))) / fits[1].se
     assert np.all(np.abs(z) < 3), dict(zip(names, z))
     assert 0.018 < float(fits[1].sigma_hat) < 0.022  # the noise, not amperes of an unmodelled restart
+
+
+def test_a_steady_run_without_a_speed_column_still_continues_the_spin_up(tmp_path):
+    """A steady free run carries only the friction's few mA, which look like rest; without a speed column a free
+    segment that follows a free one on the same clock continues it (a free rotor does not stop between samples)."""
+    plan = Plan((Segment("spin-up", 0.4, False, v_q=12.0), Segment("steady run", 0.02, False, v_q=12.0,
+                                                                   continues=True)))
+    bench = dc.engine_bench(plan, MOTOR).add_noise(0.02, 3)
+    assert np.max(np.abs(bench.segments[1].currents[0])) < 0.1  # within the at-rest threshold's reach
+    again = dc.load_bench(bench.save(tmp_path / "steady.csv"))
+    assert [s.continues for s in again.segments] == [False, True]

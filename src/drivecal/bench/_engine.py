@@ -311,7 +311,7 @@ def _plan_states(plan: Plan, motor: MotorParams, delay_samples: float):
         arrived = states[-1] if follows else None
         at = 0
         for seg, n in zip(chain, counts):
-            yield seg, np.arange(n) / fs, states[at:at + n]
+            yield seg, np.arange(n) * (1.0 / fs), states[at:at + n]
             at += n
 
 

@@ -35,7 +35,8 @@ def design(plan_path, motor_path, noise, as_json, optimize, budget, out_path):
     On the nominal motor of --motor it checks
       - the voltage circle |v_dq| <= v_dc/sqrt(3) of every sample,
       - the predicted peak current against the plan's current_limit,
-      - that a free spin-up stays stable and under max_speed,
+      - that a free spin-up stays stable and under max_speed, and that an
+        inverter-off coast-down's back-EMF stays inside v_dc/sqrt(3),
     then the rank and condition number of the sensitivity Jacobian, dead and
     weak parameters (with the reason), and the 95 % CI half-width each
     parameter would get at the given noise. Exit status 2 when the plan is

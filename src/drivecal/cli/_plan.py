@@ -25,12 +25,15 @@ if TYPE_CHECKING:
 @click.option("--sample-rate", type=_Positive(), default=None,
               help="The bench's sample rate [Hz]. Default: chosen from the motor's time constants.")
 @click.option("--noise", type=_Positive(), default=None,
-              help="Expected current-sensor noise standard deviation [A], for the predicted intervals. "
-                   "Default: 0.2 % of --imax.")
+              help="Expected current-sensor noise standard deviation [A], for the predicted intervals (and "
+                   "the length of the mechanical test). Default: 0.2 % of --imax.")
+@click.option("--estimate", "estimate", default=None, metavar="NAMES",
+              help="Comma-separated parameters the plan must identify, replacing the motor file's 'estimate' "
+                   "(default: R,Ld,Lq,lambda_m); any of J, B, T_coulomb, T_load adds the mechanical test.")
 @click.option("--json", "as_json", is_flag=True, help="Print the plan and its assessment as JSON on stdout.")
 @click.option("--out", "out_path", required=True, type=click.Path(),
               help="Plan file to write (TOML, the format `drivecal design` and `simulate` read).")
-def plan_command(motor_path, vdc, imax, max_speed, budget, sample_rate, noise, as_json, out_path):
+def plan_command(motor_path, vdc, imax, max_speed, budget, sample_rate, noise, estimate, as_json, out_path):
     """Design a bench plan for the motor: feasible, identifiable, scaled to it.
 
     \b
@@ -41,28 +44,40 @@ def plan_command(motor_path, vdc, imax, max_speed, budget, sample_rate, noise, a
         the no-load speed), a few mechanical time constants long;
       - sample rate: >= 10 samples per electrical time constant and
         <= 0.1 electrical rad per sample.
+    With J, B, T_coulomb or T_load to estimate (--estimate or the motor
+    file's 'estimate') the spin-up runs on at a steady speed and the
+    mechanical test continues it (continue = true): a low-speed run at a
+    quarter of the spin-up voltage (and a reversed one for T_load), whose
+    steady q currents carry the friction torque at two speeds, then a
+    short-circuit braking (0 V), whose deceleration shows J; the steady
+    runs are long enough for B and T_coulomb to reach a standard error of
+    10 % at --noise.
     The plan is judged like `drivecal design` (predicted peaks, rank,
     predicted 95 % CI half-widths) and scaled down until it is feasible.
     Exit status 2 when no feasible, identifiable plan exists.
     """
     out = _check_out(out_path, "--out", example="plans/motor.toml")
     from ..design import auto_design
-    from ..plan import write_plan
+    from ..plan import plan_to_dict, write_plan
+    from ._fit import _estimate_names
 
+    names = _estimate_names(estimate) if estimate is not None else None
     motor_file = _load_motor(motor_path)
+    if names is not None:
+        motor_file = motor_file.model_copy(update={"estimate": names})
     report = auto_design(motor_file.motor, v_dc=vdc, current_limit=imax, max_speed=max_speed,
-                         budget=budget, sample_rate=sample_rate, noise_sigma=noise)
+                         budget=budget, sample_rate=sample_rate, noise_sigma=noise, names=motor_file.names)
     plan = report.plan
     header = (f"drivecal plan: auto-plan for {motor_file.source}\n"
               f"v_dc {vdc:g} V, current limit {imax:g} A, max speed "
               f"{'-' if max_speed is None else f'{max_speed:g} rad/s'}, budget "
-              f"{'-' if budget is None else f'{budget:g} s'}")
+              f"{'-' if budget is None else f'{budget:g} s'}\n"
+              f"identifies {', '.join(motor_file.names)}")
     write_plan(out, plan, header=header)
     if as_json:
         click.echo(json.dumps({"plan": str(out), "sample_rate": plan.sample_rate, "num_samples": plan.num_samples,
                                "duration": sum(s.duration for s in plan.segments),
-                               "segments": [{"name": s.name, "locked": s.locked, "duration": s.duration,
-                                             "v_d": float(s.v_d), "v_q": float(s.v_q)} for s in plan.segments],
+                               "segments": plan_to_dict(plan)["segments"],
                                "assessment": report.to_dict()}, indent=2))
     else:
         _print_plan(report, out, _console(False))
@@ -83,7 +98,8 @@ def _print_plan(report, out, console: Console) -> None:
     for col in ("segment", "rotor", "duration [s]", "v_d [V]", "v_q [V]", "peak |i_dq| [A]", "peak w_m [rad/s]"):
         seg_table.add_column(escape(col), justify="left" if col in ("segment", "rotor") else "right", no_wrap=True)
     for seg, pred in zip(plan.segments, report.segments):
-        seg_table.add_row(seg.name, "locked" if seg.locked else "free", f"{seg.duration:.4g}", f"{float(seg.v_d):.4g}",
+        rotor = ("locked" if seg.locked else "free") + (", continues" if seg.continues else "")
+        seg_table.add_row(seg.name, rotor, f"{seg.duration:.4g}", f"{float(seg.v_d):.4g}",
                           f"{float(seg.v_q):.4g}", f"{pred.peak_current:.3g}",
                           "-" if pred.locked else f"{pred.peak_speed:.4g}")
     console.print(seg_table)
@@ -95,5 +111,5 @@ def _print_plan(report, out, console: Console) -> None:
     for i, n in enumerate(ident.names):
         nominal = float(getattr(report.motor, n))
         half = ident.predicted_ci95[i]
-        table.add_row(n, UNITS[n], _fmt(nominal), f"{half:.3g}", f"{100 * half / nominal:.3g}")
+        table.add_row(n, UNITS[n], _fmt(nominal), f"{half:.3g}", f"{100 * half / abs(nominal):.3g}" if nominal else "-")
     console.print(table)

@@ -248,10 +248,15 @@ def _continues(previous: _Segment, previous_last: np.ndarray, first: np.ndarray,
     period after the previous segment's last (``previous_last``, s) on one time axis, the rotor is in the
     same condition (locked or free), and the segment does not start from rest. The model then carries
     its state (currents, speed, angle) and the delayed command over, instead of restarting from the
-    noisy first sample; a segment at rest after a contiguous one starts from rest."""
+    noisy first sample; a segment at rest after a contiguous one starts from rest. A free segment
+    without a speed column that follows a free one on the same clock continues it whatever its first
+    currents: a steady run carries only the friction's few mA, which look like rest, but a free rotor
+    does not stop between two samples."""
     contiguous = np.abs(first - previous_last - seg.period) <= 0.25 * seg.period
-    same = np.asarray(previous.locked) == np.asarray(seg.locked)
-    return contiguous & same & ~np.asarray(seg.at_rest)
+    locked = np.asarray(seg.locked)
+    same = np.asarray(previous.locked) == locked
+    turning_unseen = ~locked if seg.w_m is None else np.zeros_like(locked)
+    return contiguous & same & (~np.asarray(seg.at_rest) | turning_unseen)
 
 
 def _temperature(values: np.ndarray) -> tuple[Any, Any]:

@@ -133,7 +133,7 @@ def predict_segments(plan: Plan, motor: MotorParams) -> tuple[SegmentPrediction,
 
 def _problems(plan: Plan, motor: MotorParams, segments: tuple[SegmentPrediction, ...]) -> tuple[str, ...]:
     problems = []
-    for s in segments:
+    for seg, s in zip(plan.segments, segments):
         where = f"segment '{s.name}'"
         if not s.finite:
             problems.append(f"{where}: the open-loop run goes unstable (the simulated state diverges); "
@@ -151,6 +151,12 @@ def _problems(plan: Plan, motor: MotorParams, segments: tuple[SegmentPrediction,
             elif s.peak_speed > 1.05 * no_load:
                 problems.append(f"{where}: the simulated speed {s.peak_speed:.4g} rad/s exceeds the no-load speed "
                                 f"{no_load:.4g} rad/s the voltage limit allows: the open-loop run is unstable.")
+            back_emf = float(motor.pole_pairs) * s.peak_speed * float(motor.lambda_m)
+            if seg.inverter == "off" and back_emf > plan.voltage_limit:
+                problems.append(f"{where}: the inverter is off but the back-EMF at {s.peak_speed:.4g} rad/s is "
+                                f"{back_emf:.3g} V, outside the DC link's reach v_dc/sqrt(3) = "
+                                f"{plan.voltage_limit:.3g} V: current would flow through the diodes and brake the "
+                                "rotor; coast down from a lower speed or raise v_dc.")
             if s.peak_electrical_step > MAX_ELECTRICAL_STEP:
                 problems.append(f"{where}: the rotor turns {s.peak_electrical_step:.2f} electrical rad per sample; "
                                 f"raise the sample rate or keep the speed lower (at most {MAX_ELECTRICAL_STEP} rad).")

@@ -29,9 +29,14 @@ motors share one compiled fit; a binding time budget shortens the segments
 instead, down to :data:`MIN_LOCKED_TIME_CONSTANTS` and
 :data:`MIN_SPIN_TIME_CONSTANTS`.
 
+When mechanical parameters (J, B, T_coulomb, T_load) are requested, the
+spin-up runs on to a steady speed and the mechanical test continues it: a
+low-speed run (and a reversed one for T_load) and a short-circuit braking,
+sized in ``_mechanical``.
+
 The plan is then judged by :func:`drivecal.design.assess_design` on the
-nominal motor; a segment whose predicted peak current or speed breaks a limit
-is scaled down and the plan judged again. When no feasible, identifiable plan
+nominal motor, for the requested parameters; a segment whose predicted peak
+current or speed breaks a limit is scaled down and the plan judged again. When no feasible, identifiable plan
 exists, :class:`~drivecal.errors.DrivecalError` says why in one sentence.
 """
 
@@ -42,9 +47,10 @@ import math
 
 from ._assess import MAX_ELECTRICAL_STEP as _DESIGN_MAX_STEP
 from ._assess import DesignReport, assess_design
+from ._mechanical import SETTLE_SPIN_TIMES, friction_samples, mechanical_requested, mechanical_segments, run_voltages
 from .._stats import next_power_of_two
 from ..errors import DrivecalError
-from ..physics import ESTIMATED, MotorParams
+from ..physics import ESTIMABLE, ESTIMATED, MotorParams
 from ..plan import Plan, Segment
 
 #: Steady current of a locked step, and the current scale of the spin-up, as a fraction of the current limit.
@@ -166,10 +172,15 @@ def _sample_rate(times: MotorTimes, motor: MotorParams, v_spin: float, given: fl
     return _nice_ceil(need)
 
 
-def _segment_samples(times: MotorTimes, fs: float, budget: float | None) -> list[int]:
+def _segment_samples(times: MotorTimes, fs: float, budget: float | None, runs: int = 0,
+                     steady: int = 0) -> list[int]:
+    """Samples per segment: the locked steps, the spin-up and ``runs`` continuing runs of the mechanical
+    test (the last the braking), the spin-up and every run but the braking ``steady`` samples longer."""
+    settle = SETTLE_SPIN_TIMES * times.spin_time * fs
     full = [max(LOCKED_TIME_CONSTANTS * times.tau_d * fs, MIN_SEGMENT_SAMPLES),
             max(LOCKED_TIME_CONSTANTS * times.tau_q * fs, MIN_SEGMENT_SAMPLES),
-            max(SPIN_TIME_CONSTANTS * times.spin_time * fs, MIN_SEGMENT_SAMPLES)]
+            max(SPIN_TIME_CONSTANTS * times.spin_time * fs + (steady if runs else 0), MIN_SEGMENT_SAMPLES)]
+    full += [max(settle + (steady if k < runs - 1 else 0), MIN_SEGMENT_SAMPLES) for k in range(runs)]
     full = [int(math.ceil(n)) for n in full]
     total = sum(full)
     limit = None if budget is None else int(math.floor(budget * fs + 1e-9))
@@ -180,13 +191,15 @@ def _segment_samples(times: MotorTimes, fs: float, budget: float | None) -> list
     least = [int(math.ceil(n)) for n in (MIN_LOCKED_TIME_CONSTANTS * times.tau_d * fs,
                                          MIN_LOCKED_TIME_CONSTANTS * times.tau_q * fs,
                                          MIN_SPIN_TIME_CONSTANTS * times.spin_time * fs)]
+    least += [int(math.ceil(MIN_SPIN_TIME_CONSTANTS * times.spin_time * fs))] * runs
     least = [max(n, 2) for n in least]
     if sum(least) > limit:
         need = sum(least) / fs
         raise DrivecalError(
             f"budget {budget:g} s is too short for this motor: the plan needs at least {need:.3g} s "
             f"({MIN_LOCKED_TIME_CONSTANTS:g} electrical time constants per locked step and "
-            f"{MIN_SPIN_TIME_CONSTANTS:g} spin-up times of {times.spin_time:.3g} s); give a budget of at least "
+            f"{MIN_SPIN_TIME_CONSTANTS:g} spin-up times of {times.spin_time:.3g} s per free segment); give a budget "
+            "of at least "
             f"{need:.3g} s."
         )
     # Shorten every segment alike, between its least and its full length.
@@ -196,14 +209,15 @@ def _segment_samples(times: MotorTimes, fs: float, budget: float | None) -> list
 
 
 def _plan(levels: _Levels, counts: list[int], v_dc: float, current_limit: float,
-          max_speed: float | None) -> Plan:
+          max_speed: float | None, names: tuple[str, ...] = ESTIMATED) -> Plan:
     fs = levels.sample_rate
+    mechanics = mechanical_segments(levels.v_spin, names, counts[3:], fs) if mechanical_requested(names) else ()
     return Plan(
         segments=(
             Segment("locked d-step", counts[0] / fs, locked=True, v_d=levels.v_d_step, v_q=0.0),
             Segment("locked q-step", counts[1] / fs, locked=True, v_d=0.0, v_q=levels.v_q_step),
             Segment("free spin-up", counts[2] / fs, locked=False, v_d=0.0, v_q=levels.v_spin),
-        ),
+        ) + mechanics,
         sample_rate=fs,
         v_dc=float(v_dc),
         current_limit=float(current_limit),
@@ -211,7 +225,12 @@ def _plan(levels: _Levels, counts: list[int], v_dc: float, current_limit: float,
     )
 
 
-def _check_inputs(motor: MotorParams, v_dc: float, current_limit: float, max_speed, budget, sample_rate) -> None:
+def _check_inputs(motor: MotorParams, v_dc: float, current_limit: float, max_speed, budget, sample_rate,
+                  names: tuple[str, ...]) -> None:
+    unknown = [n for n in names if n not in ESTIMABLE]
+    if unknown or not names:
+        raise DrivecalError(f"unknown parameter(s) to estimate: {', '.join(unknown) or '(none given)'}; "
+                            f"choose from {', '.join(ESTIMABLE)}.")
     for name, value, unit in (("v_dc", v_dc, "V"), ("current_limit", current_limit, "A"),
                               ("max_speed", max_speed, "rad/s"), ("budget", budget, "s"),
                               ("sample_rate", sample_rate, "Hz")):
@@ -232,14 +251,17 @@ def auto_design(
     budget: float | None = None,
     sample_rate: float | None = None,
     noise_sigma: float | None = None,
+    names: tuple[str, ...] = ESTIMATED,
 ) -> DesignReport:
     """:func:`auto_plan` and its assessment on ``motor`` (the :class:`DesignReport`).
 
     Args: as :func:`auto_plan`, plus
-        noise_sigma: sensor noise (A) for the predicted intervals; default
-            :data:`NOISE_FRACTION` of ``current_limit``.
+        noise_sigma: sensor noise (A) for the predicted intervals and the
+            mechanical test's length; default :data:`NOISE_FRACTION` of ``current_limit``.
     """
-    _check_inputs(motor, v_dc, current_limit, max_speed, budget, sample_rate)
+    names = tuple(n for n in ESTIMABLE if n in names)
+    _check_inputs(motor, v_dc, current_limit, max_speed, budget, sample_rate, names)
+    mechanics = mechanical_requested(names)
     times = MotorTimes.of(motor)
     sigma = NOISE_FRACTION * current_limit if noise_sigma is None else float(noise_sigma)
     r, p, lam = float(motor.R), float(motor.pole_pairs), float(motor.lambda_m)
@@ -256,8 +278,11 @@ def auto_design(
     def judge(levels: _Levels) -> DesignReport:
         fs = _sample_rate(times, motor, levels.v_spin, sample_rate)
         levels = dataclasses.replace(levels, sample_rate=fs)
-        plan = _plan(levels, _segment_samples(times, fs, budget), v_dc, current_limit, max_speed)
-        return assess_design(plan, motor, noise_sigma=sigma)
+        runs = len(run_voltages(levels.v_spin, names)) if mechanics else 0
+        steady = friction_samples(motor, names, levels.v_spin, sigma) if mechanics else 0
+        plan = _plan(levels, _segment_samples(times, fs, budget, runs, steady), v_dc, current_limit, max_speed,
+                     names)
+        return assess_design(plan, motor, noise_sigma=sigma, names=names)
 
     report = judge(levels)
     for _ in range(_ATTEMPTS):
@@ -271,9 +296,9 @@ def auto_design(
     if report.ok:
         # The spin-up's back-EMF keeps its current well under a locked step's: spin it faster,
         # within the same current, the speed cap and the voltage circle, for a tighter lambda_m.
-        spin = report.segments[2]
-        boost = min(STEP_CURRENT_FRACTION * current_limit / spin.peak_current, w_cap / spin.peak_speed,
-                    v_max / levels.v_spin)
+        free = report.segments[2:]  # the spin-up and the runs that continue it
+        boost = min(STEP_CURRENT_FRACTION * current_limit / max(s.peak_current for s in free),
+                    w_cap / max(s.peak_speed for s in free), v_max / levels.v_spin)
         if boost > 1.05:
             boosted = judge(levels.scaled((1.0, 1.0, boost)))
             if boosted.ok:
@@ -286,14 +311,16 @@ def auto_design(
     raise DrivecalError(
         "the auto-plan for this motor does not identify "
         + (", ".join(weak) if weak else f"all parameters (condition number {ident.condition_number:.3g})")
-        + "; raise the budget, the current limit or max_speed."
+        + ("; the friction shows in the steady free runs: raise the budget or max_speed, or measure with less "
+           "noise." if mechanics else "; raise the budget, the current limit or max_speed.")
     )
 
 
 def _scale_down(report: DesignReport, current_limit: float, w_limit: float,
                 w_cap: float) -> tuple[float, float, float] | None:
-    """Per-segment voltage factors that bring predicted peaks back inside the limits, or None if none broke."""
-    scale = [1.0, 1.0, 1.0]
+    """Voltage factors (d-step, q-step, spin-up) that bring predicted peaks back inside the limits, or None if
+    none broke; the runs that continue the spin-up scale with it."""
+    scale = [1.0] * len(report.segments)
     for i, s in enumerate(report.segments):
         if not s.finite:
             scale[i] = 0.5
@@ -304,6 +331,7 @@ def _scale_down(report: DesignReport, current_limit: float, w_limit: float,
             scale[i] = min(scale[i], w_cap / s.peak_speed)
         if not s.locked and s.peak_electrical_step > _DESIGN_MAX_STEP:
             scale[i] = min(scale[i], SPEED_FRACTION * _DESIGN_MAX_STEP / s.peak_electrical_step)
+    scale = scale[:2] + [min(scale[2:])]
     return None if scale == [1.0, 1.0, 1.0] else (scale[0], scale[1], scale[2])
 
 
@@ -315,8 +343,9 @@ def auto_plan(
     max_speed: float | None = None,
     budget: float | None = None,
     sample_rate: float | None = None,
+    names: tuple[str, ...] = ESTIMATED,
 ) -> Plan:
-    """A feasible, identifiable three-segment calibration plan scaled to ``motor``.
+    """A feasible, identifiable calibration plan scaled to ``motor``.
 
     Args:
         motor: the nominal (datasheet) motor: R (ohm), Ld, Lq (H), lambda_m
@@ -329,15 +358,17 @@ def auto_plan(
         budget: longest total plan duration (s), or None.
         sample_rate: the bench's sample rate (Hz); default chosen from the
             motor's time constants.
+        names: the parameters to estimate; with any of J, B, T_coulomb,
+            T_load the plan gains the mechanical test (``_mechanical``).
 
     Returns:
-        A :class:`Plan` (locked d-step, locked q-step, free spin-up) that
-        :func:`drivecal.design.assess_design` judges feasible and identifiable
-        on ``motor``.
+        A :class:`Plan` (locked d-step, locked q-step, free spin-up, and the
+        mechanical test's continuing runs) that :func:`drivecal.design.assess_design`
+        judges feasible and identifiable on ``motor``.
 
     Raises:
         DrivecalError: bad limits, or no feasible identifiable plan exists
             (one sentence naming the limit to change).
     """
     return auto_design(motor, v_dc=v_dc, current_limit=current_limit, max_speed=max_speed, budget=budget,
-                       sample_rate=sample_rate).plan
+                       sample_rate=sample_rate, names=names).plan
