@@ -11,7 +11,27 @@ from __future__ import annotations
 import enum
 
 
-class Status(enum.Enum):
+class _Vocabulary(enum.Enum):
+    """A status word with its key (the JSON's), label (tables), exit code (the CLI's) and actionable message."""
+
+    def __new__(cls, key: str, label: str, exit_code: int, message: str):
+        obj = object.__new__(cls)
+        obj._value_ = key
+        obj.label = label
+        obj.exit_code = exit_code
+        obj.message = message
+        return obj
+
+    @property
+    def key(self) -> str:
+        """The result JSON's word for it."""
+        return self.value
+
+    def __str__(self) -> str:
+        return self.label
+
+
+class Status(_Vocabulary):
     """How one motor's calibration ended, most serious last.
 
     ``Status("partial")`` looks a status up by its key; :meth:`from_label` by its label.
@@ -36,19 +56,6 @@ class Status(enum.Enum):
     INVALID = ("invalid", "invalid file", 2,
                "the bench file was refused: the reason names the field and the fix")
 
-    def __new__(cls, key: str, label: str, exit_code: int, message: str):
-        obj = object.__new__(cls)
-        obj._value_ = key
-        obj.label = label
-        obj.exit_code = exit_code
-        obj.message = message
-        return obj
-
-    @property
-    def key(self) -> str:
-        """The result JSON's word for it (``verdict.status``)."""
-        return self.value
-
     @property
     def ok(self) -> bool:
         """Whether its estimates are usable (calibrated, or partially: the identifiable ones)."""
@@ -62,11 +69,8 @@ class Status(enum.Enum):
                 return status
         raise ValueError(f"{label!r} is not a drivecal status label")
 
-    def __str__(self) -> str:
-        return self.label
 
-
-class Spec(enum.Enum):
+class Spec(_Vocabulary):
     """How one motor compares with its specification (the motor file's ``[tolerance]``), judged with
     the 95 % intervals: the production line's pass/fail. Keys, labels, exit codes and messages as
     :class:`Status`. "not calibrated" exits with the verdict's own code (:attr:`Status.exit_code`).
@@ -87,21 +91,6 @@ class Spec(enum.Enum):
     #: The bench file was refused.
     INVALID = ("invalid", "invalid file", 2, "not judged: the bench file was refused (see the reason)")
 
-    def __new__(cls, key: str, label: str, exit_code: int, message: str):
-        obj = object.__new__(cls)
-        obj._value_ = key
-        obj.label = label
-        obj.exit_code = exit_code
-        obj.message = message
-        return obj
-
-    @property
-    def key(self) -> str:
-        """The result JSON's word for it (``spec.status``)."""
-        return self.value
-
-    def __str__(self) -> str:
-        return self.label
 
 
 # optimistix reports how a solve ended as an equinox enumeration item; drivecal keeps it as a plain integer
