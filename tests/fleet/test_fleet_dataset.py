@@ -15,7 +15,7 @@ from helpers.bench_logs import continuous_recording, format_toml, write_mdf4
 
 MOTOR = dc.load_motor(None)
 #: Columns that name where a row came from, not what was calibrated.
-WHERE = ["file", "file_sha256"]
+WHERE = ["file", "file_sha256", "tested_at"]  # where and when the bench wrote each file
 
 
 @pytest.fixture(scope="module")
