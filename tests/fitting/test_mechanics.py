@@ -82,7 +82,7 @@ def test_mechanics_from_the_currents_alone(coast_clean, prior):
 def test_measured_speed_hides_the_mechanics(truth):
     bench = dc.engine_bench(dc.default_plan(), truth, record_speed=True)
     experiment = bench.experiment(measured_speed=True)
-    with pytest.raises(dc.DrivecalError, match=r"J is requested .* measured speed drives the model.*--simulated-speed"):
+    with pytest.raises(dc.DrivecalError, match=r"J is requested .* measured speed as the model's input.*--speed output"):
         check_requested(("R", "J"), experiment, "bench.csv")
     ident = assess_identifiability(experiment, truth, names=dc.ESTIMATED + ("J", "B"))
     assert set(ident.dead_params) == {"J", "B"} and "measured speed" in ident.reasons["J"]

@@ -253,7 +253,7 @@ def structural_reason(name: str, experiment: Experiment) -> str | None:
         if locked.all():
             return "no free-rotor segment (the mechanics act only where the rotor turns)"
         if np.all(np.asarray(experiment.speed_input)[~locked] > 0.5):
-            return ("the measured speed drives the model in every free segment (--speed input), so the "
+            return ("the measured speed as the model's input in every free segment (--speed input), so the "
                     "mechanics never reach the currents")
     return None
 
