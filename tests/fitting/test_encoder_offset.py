@@ -105,3 +105,23 @@ def test_a_dq_file_is_refused_with_one_sentence(clean, tmp_path, capsys):
     assert_one_sentence(code, err, str(bench), "encoder_offset is requested", "it is a dq file",
                         "does not correct an encoder offset")
     assert not out.exists()
+
+
+def test_the_default_command_calibrates_the_phase_file_with_the_offset_in_estimate(clean, tmp_path, capsys):
+    """`drivecal fit FILE --motor M` (no other flag) on the drive's phase file, encoder_offset in 'estimate'."""
+    import json
+
+    from drivecal.cli import main
+
+    theta_enc = np.concatenate([s.theta_e for s in clean.segments])
+    path = tmp_path / "phase.csv"
+    clean.add_noise(NOISE, 3).to_phase_frame(theta_enc).to_csv(path, index=False, float_format="%.17g")
+    motor = tmp_path / "motor.toml"
+    motor.write_text('R = 0.45\nLd = 3.2e-3\nLq = 5.8e-3\nlambda_m = 0.0533\npole_pairs = 4\n'
+                     'estimate = ["R", "Ld", "Lq", "lambda_m", "encoder_offset"]\n')
+    main(["fit", str(path), "--motor", str(motor), "--json"])  # a calibrated fit returns (exit 0)
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["verdict"]["status"] == "calibrated", doc["verdict"]
+    for name in NAMES:
+        p = doc["parameters"][name]
+        assert abs(p["estimate"] - float(getattr(TRUE, name))) < 3 * p["se"], (name, p)

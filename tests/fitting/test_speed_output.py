@@ -12,6 +12,7 @@ their nominal rate over 224 seeds (one batched fit; binomial SE 0.015 at 0.95).
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -71,7 +72,7 @@ def test_speed_as_output_recovers_the_mechanics_more_precisely_than_the_currents
     assert abs(float(with_speed.sigma_hat) / CURRENT_NOISE - 1) < 0.05
 
 
-def test_fit_takes_the_speed_as_output_when_mechanics_are_requested(clean, tmp_path, capsys):
+def test_the_default_command_takes_the_speed_as_output_when_mechanics_are_requested(clean, tmp_path, capsys):
     from drivecal.cli import main
 
     path = _noisy(clean, 2).save(tmp_path / "coast.csv")
@@ -79,9 +80,13 @@ def test_fit_takes_the_speed_as_output_when_mechanics_are_requested(clean, tmp_p
     motor.write_text('R = "0.45 ohm"\nLd = "3.2 mH"\nLq = "5.8 mH"\nlambda_m = "0.0533 Wb"\npole_pairs = 4\n'
                      'J = "1.6e-3 kg*m^2"\nB = "1.2e-4 N*m*s"\nspeed_noise = "0.05 rad/s"\n'
                      'estimate = ["R", "Ld", "Lq", "lambda_m", "J", "B", "T_coulomb"]\n')
-    code = main(["fit", str(path), "--motor", str(motor), "--effects", "none"])  # calibrated: returns 0
-    out = capsys.readouterr().out
-    assert code == 0 and "measured speed as a second output" in out, out
+    code = main(["fit", str(path), "--motor", str(motor), "--json"])  # the default command; calibrated: returns 0
+    doc = json.loads(capsys.readouterr().out)
+    assert code == 0 and doc["verdict"]["status"] == "calibrated", doc["verdict"]
+    assert doc["measured_speed"] is False  # not an input: the second output
+    for name in NAMES:
+        p = doc["parameters"][name]
+        assert abs(p["estimate"] - float(getattr(TRUE, name))) < 3 * p["se"], (name, p)
 
 
 @pytest.mark.slow
