@@ -27,7 +27,8 @@ import numpy as np
 from ..model import cached_call
 from .._stats import t_ppf
 from ..errors import DrivecalError
-from ..model import Experiment, model_experiment, predict_current_parts, predict_currents, simulate_states
+from ..model import (Experiment, join_current_parts, model_experiment, predict_current_parts, predict_currents,
+                     simulate_states)
 from ..physics import ADDITIVE_SCALE, ESTIMATED, MECHANICAL, MotorParams, dq_to_abc, search_scale
 
 #: A parameter whose relative sensitivity is below this fraction of the
@@ -61,11 +62,12 @@ def _sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tup
     theta = motor.vector(names)
 
     def currents(th):
-        rows = predict_currents(motor.with_vector(names, th), experiment).reshape(-1)
         if not experiment.speed_outputs:
-            return rows
-        speed = predict_current_parts(motor.with_vector(names, th), experiment)[-len(experiment.speed_outputs):]
-        return jnp.concatenate([rows, *speed])
+            return predict_currents(motor.with_vector(names, th), experiment).reshape(-1)
+        # One rollout for both: the currents' parts laid end to end, then the weighted speed's.
+        parts = predict_current_parts(motor.with_vector(names, th), experiment)
+        speed = parts[len(parts) - len(experiment.speed_outputs):]
+        return jnp.concatenate([join_current_parts(experiment, parts).reshape(-1), *speed])
 
     return jax.jacfwd(currents)(theta)
 
