@@ -1,8 +1,11 @@
 """The motor's laws, once: the dq equations, parameters and units, the Clarke/Park transforms, the inverter's
-voltage error and delay, the current sensors' offsets, the encoder's offset."""
+voltage error and delay, the magnetic saturation (flux linkages as states), the current sensors' offsets, the encoder's offset."""
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
 from ._inverter import dead_time_error
+from ._magnetics import (EXPONENT_CANDIDATES, EXPONENTS, MAGNETIC, currents_of_flux, flux_derivatives,
+                         flux_of_currents, from_hinkkanen, hinkkanen_coefficients, incremental_inductances,
+                         is_saturating)
 from ._motor import (ADDITIVE_SCALE, DEFAULT_MOTOR, DESCRIPTIONS, DqCoefficients, ESTIMABLE, ESTIMATED, FIXED,
                      MECHANICAL, MotorParams, NUISANCE, SETTINGS, UNITS, coulomb_friction, dq_coefficients,
                      dq_derivatives, dq_derivatives_from,
@@ -10,7 +13,9 @@ from ._motor import (ADDITIVE_SCALE, DEFAULT_MOTOR, DESCRIPTIONS, DqCoefficients
 from ._sensors import delayed, encoder_frame, rotor_frame, sensor_offsets, with_dq_offsets
 from ._transforms import abc_to_dq, clarke, dq_to_abc, inverse_clarke, inverse_park, park
 
-__all__ = ["ADDITIVE_SCALE", "DEFAULT_MOTOR", "DESCRIPTIONS", "DqCoefficients", "ESTIMABLE", "ESTIMATED", "FIXED",
+__all__ = ["EXPONENT_CANDIDATES", "EXPONENTS", "MAGNETIC", "currents_of_flux", "flux_derivatives",
+           "flux_of_currents", "from_hinkkanen", "hinkkanen_coefficients", "incremental_inductances",
+           "is_saturating", "ADDITIVE_SCALE", "DEFAULT_MOTOR", "DESCRIPTIONS", "DqCoefficients", "ESTIMABLE", "ESTIMATED", "FIXED",
            "MECHANICAL", "MotorParams", "NUISANCE", "SETTINGS", "UNITS", "abc_to_dq", "clarke", "coulomb_friction",
            "dead_time_error", "delayed", "encoder_frame",
            "dq_coefficients", "dq_derivatives", "dq_derivatives_from", "dq_to_abc", "from_search", "inverse_clarke",

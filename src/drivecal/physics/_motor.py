@@ -26,6 +26,11 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+#: The saturation coefficients a fit may estimate (dimensionless; ``_magnetics``), in drivecal's order.
+MAGNETIC: tuple[str, ...] = ("sat_d", "sat_q", "sat_dq")
+#: The saturating law's exponents (Hinkkanen's S, T, U, V): settings, chosen among ``_magnetics.EXPONENT_CANDIDATES``.
+EXPONENTS: tuple[str, ...] = ("exp_d", "exp_q", "exp_dq_d", "exp_dq_q")
+
 #: Parameters a calibration estimates by default, in this order.
 ESTIMATED: tuple[str, ...] = ("R", "Ld", "Lq", "lambda_m")
 #: Parameters held fixed by default (known from the datasheet or unobservable
@@ -40,10 +45,11 @@ NUISANCE: tuple[str, ...] = ("delay", "v_dead", "i_dead", "offset_d", "offset_q"
 #: values, T_coulomb and T_load at zero): they act on the currents only where the rotor turns and
 #: its speed is simulated, not taken from a measured speed.
 MECHANICAL: tuple[str, ...] = ("J", "B", "T_coulomb", "T_load")
-#: Every parameter a fit may estimate, in drivecal's order.
-ESTIMABLE: tuple[str, ...] = ESTIMATED + NUISANCE + MECHANICAL
-#: Settings of the models, never estimated.
-SETTINGS: tuple[str, ...] = ("T_ref", "w_coulomb")
+#: Every parameter a fit may estimate, in drivecal's order (the saturation coefficients last: see
+#: ``_magnetics``; zero in a linear machine).
+ESTIMABLE: tuple[str, ...] = ESTIMATED + NUISANCE + MECHANICAL + MAGNETIC
+#: Settings of the models, never estimated (the saturation law's exponents are chosen among candidates).
+SETTINGS: tuple[str, ...] = ("T_ref", "w_coulomb") + EXPONENTS + ("i_ref",)
 #: Parameters that may be zero or negative: searched additively around the
 #: prior in steps of this size (their unit), not as ``ln(theta/prior)``.
 ADDITIVE_SCALE: dict[str, float] = {
@@ -56,6 +62,9 @@ ADDITIVE_SCALE: dict[str, float] = {
     "encoder_offset": 0.05,
     "T_coulomb": 1e-3,
     "T_load": 1e-3,
+    "sat_d": 0.1,
+    "sat_q": 0.1,
+    "sat_dq": 0.1,
 }
 
 #: SI unit of every parameter, for tables and JSON.
@@ -80,6 +89,14 @@ UNITS: dict[str, str] = {
     "w_coulomb": "rad/s",
     "i_dead": "A",
     "T_ref": "degC",
+    "sat_d": "-",
+    "sat_q": "-",
+    "sat_dq": "-",
+    "exp_d": "-",
+    "exp_q": "-",
+    "exp_dq_d": "-",
+    "exp_dq_q": "-",
+    "i_ref": "A",
 }
 
 #: One-line meaning of every parameter.
@@ -104,6 +121,14 @@ DESCRIPTIONS: dict[str, str] = {
     "w_coulomb": "speed width of the Coulomb friction's sign",
     "i_dead": "current width of the dead-time transition",
     "T_ref": "temperature at which R is stated",
+    "sat_d": "d-axis self-saturation (per unit at i_ref)",
+    "sat_q": "q-axis self-saturation (per unit at i_ref)",
+    "sat_dq": "cross-saturation between the axes (per unit at i_ref)",
+    "exp_d": "exponent of the d-axis self-saturation (Hinkkanen's S)",
+    "exp_q": "exponent of the q-axis self-saturation (Hinkkanen's T)",
+    "exp_dq_d": "d exponent of the cross-saturation (Hinkkanen's U)",
+    "exp_dq_q": "q exponent of the cross-saturation (Hinkkanen's V)",
+    "i_ref": "reference current of the saturation coefficients",
 }
 
 
@@ -145,6 +170,14 @@ class MotorParams(eqx.Module):
             ``theta_e + encoder_offset``, so its Park transform turns every dq
             quantity by ``-encoder_offset`` (``_sensors.encoder_frame``) and the
             true rotor-frame angle is the column minus the offset.
+        sat_d, sat_q, sat_dq: magnetic saturation (dimensionless; 0: a linear
+            machine): the d- and q-axis self-saturation and the cross-saturation of
+            the current-of-flux law in ``_magnetics`` (Ld, Lq, lambda_m are then the
+            small-signal values at zero current).
+        exp_d, exp_q, exp_dq_d, exp_dq_q: that law's exponents (Hinkkanen's S, T,
+            U, V; settings).
+        i_ref: the current (A) at which the saturation coefficients are stated
+            (``sat_d = 1``: the d-axis secant inductance halved at i_ref).
 
     The defaults are the 48 V interior PMSM of the drivecal tutorial bench on
     an ideal inverter and ideal sensors.
@@ -170,6 +203,14 @@ class MotorParams(eqx.Module):
     alpha_R: Any = 3.93e-3
     T_ref: Any = 20.0
     encoder_offset: Any = 0.0
+    sat_d: Any = 0.0
+    sat_q: Any = 0.0
+    sat_dq: Any = 0.0
+    exp_d: Any = 2.0
+    exp_q: Any = 2.0
+    exp_dq_d: Any = 1.0
+    exp_dq_q: Any = 1.0
+    i_ref: Any = 1.0
 
     def replace(self, **changes: Any) -> MotorParams:
         """A copy with the named fields changed, e.g. ``motor.replace(R=0.5)``."""
@@ -358,7 +399,8 @@ def from_search(motor: MotorParams, names: tuple[str, ...], z: Any, xp: Any = jn
     """Parameters ``theta`` (their units) at search coordinates ``z``, and ``d theta / d z`` (``xp`` as above)."""
     theta0 = parameter_values(motor, names, xp)
     is_log, scale = search_scale(motor, names, xp)
-    theta = xp.where(is_log, theta0 * xp.exp(z), theta0 + scale * z)
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverged search's z on the host: inf, reported as such
+        theta = xp.where(is_log, theta0 * xp.exp(z), theta0 + scale * z)
     return theta, xp.where(is_log, theta, scale)
 
 

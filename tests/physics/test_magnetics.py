@@ -1,0 +1,76 @@
+"""The saturating magnetic law (physics._magnetics): Hinkkanen's published model exactly, its inverse, and the
+linear machine as its special case."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import drivecal as dc
+from drivecal.physics import (currents_of_flux, dq_derivatives, flux_derivatives, flux_of_currents, from_hinkkanen,
+                              hinkkanen_coefficients, incremental_inductances)
+
+#: The 6.7-kW synchronous reluctance motor of Hinkkanen et al., "Sensorless self-commissioning of synchronous
+#: reluctance motors at standstill without rotor locking", IEEE Trans. Ind. Appl. 53(3), 2017
+#: (doi 10.1109/TIA.2016.2644624), as published in Aalto's motulator examples (SI units).
+SYRM = dict(a_d0=17.4, a_dd=373.0, S=5, a_q0=52.1, a_qq=658.0, T=1, a_dq=1120.0, U=1, V=0)
+
+
+def _published(psi_d, psi_q, a_d0, a_dd, S, a_q0, a_qq, T, a_dq, U, V):
+    """The published law, written out as the paper gives it."""
+    g_d = a_d0 + a_dd * np.abs(psi_d) ** S + a_dq / (V + 2) * np.abs(psi_d) ** U * np.abs(psi_q) ** (V + 2)
+    g_q = a_q0 + a_qq * np.abs(psi_q) ** T + a_dq / (U + 2) * np.abs(psi_d) ** (U + 2) * np.abs(psi_q) ** V
+    return g_d * psi_d, g_q * psi_q
+
+
+@pytest.fixture(scope="module")
+def syrm():
+    return from_hinkkanen(dc.MotorParams(R=0.54, pole_pairs=2.0, J=0.015, lambda_m=0.0), i_ref=20.0, **SYRM)
+
+
+def test_hinkkanen_synchronous_reluctance_model_exactly(syrm):
+    rng = np.random.default_rng(0)
+    psi = rng.uniform(-1.0, 1.0, size=(2, 500))
+    got = np.asarray(currents_of_flux(jnp.asarray(psi[0]), jnp.asarray(psi[1]), syrm))
+    want = np.asarray(_published(psi[0], psi[1], **SYRM))
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    back = hinkkanen_coefficients(syrm)
+    for name, value in SYRM.items():
+        assert back[name] == pytest.approx(value, rel=1e-12)
+
+
+def test_flux_of_currents_inverts_the_law(syrm):
+    rng = np.random.default_rng(1)
+    i = jnp.asarray(rng.uniform(-40.0, 40.0, size=(2, 200)))
+    psi = flux_of_currents(i[0], i[1], syrm)
+    np.testing.assert_allclose(np.asarray(currents_of_flux(*psi, syrm)), np.asarray(i), rtol=0, atol=1e-9)
+
+
+def test_small_signal_values_at_zero_current_whatever_the_saturation():
+    motor = dc.MotorParams().replace(sat_d=0.4, sat_q=0.8, sat_dq=0.3, i_ref=10.0, exp_d=3.0, exp_q=2.0)
+    psi = flux_of_currents(jnp.zeros(()), jnp.zeros(()), motor)
+    assert float(psi[0]) == pytest.approx(float(motor.lambda_m), abs=1e-15) and float(psi[1]) == 0.0
+    l_dd, l_dq, l_qq = (float(x) for x in incremental_inductances(*psi, motor))
+    assert l_dd == pytest.approx(float(motor.Ld), rel=1e-12) and l_qq == pytest.approx(float(motor.Lq), rel=1e-12)
+    assert l_dq == 0.0
+    # Saturation: at 10 A on q the incremental Lq has fallen; cross-saturation couples the axes (reciprocal).
+    psi = flux_of_currents(jnp.asarray(5.0), jnp.asarray(10.0), motor)
+    l_dd, l_dq, l_qq = (float(x) for x in incremental_inductances(*psi, motor))
+    assert l_qq < 0.6 * float(motor.Lq) and l_dq != 0.0
+
+
+def test_linear_machine_is_the_special_case():
+    """With no saturation the flux equations are drivecal's dq equations (psi = L i + lambda_m)."""
+    motor = dc.MotorParams(B=2e-4, T_load=0.01)
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        i_d, i_q, w_m, theta = rng.normal(size=4) * (3.0, 3.0, 50.0, 1.0)
+        v = rng.normal(size=2) * 10.0
+        psi = (float(motor.lambda_m) + float(motor.Ld) * i_d, float(motor.Lq) * i_q)
+        (dpsi_d, dpsi_q, dw, dth), currents = flux_derivatives((psi[0], psi[1], w_m, theta), v, motor, False)
+        di_d, di_q, dw_lin, dth_lin = dq_derivatives((i_d, i_q, w_m, theta), v, motor, False)
+        np.testing.assert_allclose([float(c) for c in currents], [i_d, i_q], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose([float(dpsi_d), float(dpsi_q)],
+                                   [float(motor.Ld) * float(di_d), float(motor.Lq) * float(di_q)], rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose([float(dw), float(dth)], [float(dw_lin), float(dth_lin)], rtol=1e-10, atol=1e-9)
