@@ -8,7 +8,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..physics import MotorParams
+from ..physics import MAGNETIC, EXPONENTS, MotorParams, is_saturating
+
+#: The fields of the saturating law that the flux-state block holds as constants.
+_LAW = MAGNETIC + EXPONENTS + ("i_ref",)
 
 
 def pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: Any = None, name: str = "pmsm",
@@ -26,9 +29,13 @@ def pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: Any =
 
     Returns:
         The block; input port 0 is ``[v_d, v_q]`` (V), output port 0 the state,
-        output port 1 the torque (N*m).
+        output port 1 the torque (N*m). A motor with magnetic saturation
+        (``physics.is_saturating``) is a flux-state block (:func:`flux_pmsm_block`).
     """
     from jaxonomy.library.drives import PMSM
+
+    if is_saturating(motor):
+        return flux_pmsm_block(motor, locked=locked, initial_state=initial_state, name=name, load_port=load_port)
 
     return PMSM(
         R=float(motor.R),
@@ -43,4 +50,57 @@ def pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: Any =
         locked=bool(locked),
         enable_load_port=bool(load_port),
         name=name,
+    )
+
+
+def flux_pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: Any = None, name: str = "pmsm",
+                    load_port: bool = False):
+    """A PMSM whose iron saturates, as a Jaxonomy block with the flux linkages as its continuous state.
+
+    The state is ``[psi_d, psi_q, w_m, theta_m]`` (Wb, Wb, rad/s, rad) and its derivative
+    ``physics.flux_derivatives`` (the currents from ``physics.currents_of_flux``: the same law as
+    drivecal's model). Ports as :func:`pmsm_block`: output port 0 is ``[i_d, i_q, w_m, theta_m]``,
+    the currents computed from the flux; ``initial_state`` is in currents too (default rest, where the
+    flux is ``(lambda_m, 0)``). The law's coefficients are constants of the block; R, Ld, Lq,
+    lambda_m, the mechanics and the load are its parameters as in ``jaxonomy.library.drives.PMSM``.
+    """
+    import jax.numpy as jnp
+    from jaxonomy.library.drives import PMSM
+
+    from ..physics import currents_of_flux, flux_derivatives, flux_of_currents
+
+    law = {n: float(getattr(motor, n)) for n in _LAW}
+    start = jnp.zeros(4) if initial_state is None else jnp.asarray(initial_state, dtype=float)
+
+    def machine(p):
+        return MotorParams(**{k: p[k] for k in ("R", "Ld", "Lq", "lambda_m", "pole_pairs", "J", "B", "T_load")},
+                           **law)
+
+    class FluxPMSM(PMSM):
+        def initialize(self, R, Ld, Lq, lambda_m, pole_pairs, J, B, T_load, initial_state=None, locked=False,
+                       enable_load_port=False):
+            m = machine(dict(R=R, Ld=Ld, Lq=Lq, lambda_m=lambda_m, pole_pairs=pole_pairs, J=J, B=B, T_load=T_load))
+            psi_d, psi_q = flux_of_currents(start[0], start[1], m)
+            self.declare_continuous_state(default_value=jnp.stack([psi_d, psi_q, start[2], start[3]]), ode=self._ode)
+
+        def _state_output(self, _time, state, *_inputs, **p):
+            x = state.continuous_state
+            i_d, i_q = currents_of_flux(x[0], x[1], machine(p))
+            return jnp.stack([i_d, i_q, x[2], x[3]])
+
+        def _ode(self, _time, state, *inputs, **p):
+            m = machine(p)
+            friction = inputs[1] if self._enable_load_port else m.T_load
+            d, _ = flux_derivatives(state.continuous_state, inputs[0], m, self._locked, friction=friction)
+            return jnp.stack(d)
+
+        def _torque_output(self, _time, state, *_inputs, **p):
+            x = state.continuous_state
+            i_d, i_q = currents_of_flux(x[0], x[1], machine(p))
+            return 1.5 * p["pole_pairs"] * (x[0] * i_q - x[1] * i_d)
+
+    return FluxPMSM(
+        R=float(motor.R), Ld=float(motor.Ld), Lq=float(motor.Lq), lambda_m=float(motor.lambda_m),
+        pole_pairs=float(motor.pole_pairs), J=float(motor.J), B=float(motor.B), T_load=float(motor.T_load),
+        locked=bool(locked), enable_load_port=bool(load_port), name=name,
     )

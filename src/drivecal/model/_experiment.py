@@ -16,7 +16,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ..physics import MotorParams, delayed, rotor_frame
+from ..physics import MAGNETIC, MotorParams, delayed, rotor_frame
 from ..plan import Plan
 
 
@@ -89,6 +89,10 @@ class Experiment(eqx.Module):
             the steps linearised all at once (static; fastest for one motor),
             else by forward mode through the scans (fastest in ``vmap``-ped
             batches of more than a few motors); same values either way.
+        saturating: the motor's iron saturates (static): the rollout integrates
+            the flux linkages and takes the currents from the law
+            (``physics.currents_of_flux``, ``_flux``). Switched on by
+            :func:`model_experiment` when a saturation coefficient is estimated or non-zero.
     """
 
     voltages: jnp.ndarray
@@ -113,6 +117,7 @@ class Experiment(eqx.Module):
     base_delay: int = eqx.field(static=True, default=0)
     fractional_delay: bool = eqx.field(static=True, default=False)
     linearised_tangents: bool = eqx.field(static=True, default=True)
+    saturating: bool = eqx.field(static=True, default=False)
 
     @property
     def num_samples(self) -> int:
@@ -311,7 +316,8 @@ def model_experiment(experiment: Experiment, motor: MotorParams, names: tuple[st
     of an experiment with a measured angle (every phase bench file; a dq
     file's ``theta_e`` column is taken, as for the phase offsets, as the angle
     its Park transform used): a dq file without one was turned into dq by the
-    drive with an angle the file does not hold.
+    drive with an angle the file does not hold. A saturation coefficient estimated
+    or non-zero makes the rollout a flux-state one (``saturating``).
     """
     def used(name):
         return name in names or bool(np.any(np.asarray(getattr(motor, name)) != 0.0))
@@ -321,11 +327,13 @@ def model_experiment(experiment: Experiment, motor: MotorParams, names: tuple[st
     encoder = experiment.encoder_offset or (used("encoder_offset") and experiment.has_angle)
     delay = np.asarray(motor.delay)
     fractional = experiment.fractional_delay or "delay" in names or bool(np.any(delay != np.floor(delay)))
-    if (dead_time, phase_offsets, encoder, fractional) == (experiment.dead_time, experiment.phase_offsets,
-                                                           experiment.encoder_offset, experiment.fractional_delay):
+    saturating = experiment.saturating or any(used(n) for n in MAGNETIC)
+    if (dead_time, phase_offsets, encoder, fractional, saturating) == (
+            experiment.dead_time, experiment.phase_offsets, experiment.encoder_offset, experiment.fractional_delay,
+            experiment.saturating):
         return experiment
     return dataclasses.replace(experiment, dead_time=dead_time, phase_offsets=phase_offsets,
-                               encoder_offset=encoder, fractional_delay=fractional)
+                               encoder_offset=encoder, fractional_delay=fractional, saturating=saturating)
 
 
 def in_rotor_frame(motor: MotorParams, experiment: Experiment) -> Experiment:
@@ -358,7 +366,7 @@ def stack_experiments(experiments: list[Experiment]) -> Experiment:
     """
     # Static model switches must agree across the batch: switch on what any one needs.
     flags = {f: any(getattr(e, f) for e in experiments)
-             for f in ("dead_time", "phase_offsets", "encoder_offset", "thermal", "fractional_delay")}
+             for f in ("dead_time", "phase_offsets", "encoder_offset", "thermal", "fractional_delay", "saturating")}
     # The segment layout is shared by the batch; where the datasets' layouts differ, none is used.
     layouts = {e.segments for e in experiments}
     flags["segments"] = layouts.pop() if len(layouts) == 1 else None

@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._experiment import Experiment, chain_starts, in_rotor_frame
+from ._flux import rollout_flux
 from ._lowered_cache import call as cached_call
 from ._scans import _scan_affine_constant, _scan_linearised_tangents, _scan_states
 from ._steps import _held, _quadratic, _rk4, _with_delay
@@ -94,8 +95,11 @@ def _rollout(motor: MotorParams, experiment: Experiment, keep: int) -> jnp.ndarr
 
     Segment by segment along ``experiment.segments`` (see the module
     docstring); one sequential scan over all samples where there is no layout
-    or the dead-time model couples the currents to the rotor angle.
+    or the dead-time model couples the currents to the rotor angle; the flux
+    linkages as states where the motor saturates (``_flux``).
     """
+    if experiment.saturating:
+        return rollout_flux(motor, experiment, keep, _conducting(experiment))
     if experiment.segments is None or experiment.dead_time:
         return _rollout_sequential(motor, experiment, keep)
     parts = [jnp.stack(columns, axis=1) for columns in _segment_states(motor, experiment, keep)]
@@ -355,7 +359,7 @@ def predict_currents(motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
 def _segmented(experiment: Experiment) -> bool:
     """Whether :func:`predict_current_parts` splits by segment (else one part over all samples; static)."""
     return (experiment.segments is not None and not experiment.dead_time and not experiment.phase_offsets
-            and not experiment.encoder_offset)
+            and not experiment.saturating            and not experiment.encoder_offset)
 
 
 def predict_current_parts(motor: MotorParams, experiment: Experiment) -> tuple:

@@ -1,0 +1,52 @@
+"""The sensitivities of the predicted currents to the saturation coefficients, at every candidate exponent.
+
+The score tests of ``fit --magnetics auto`` (``diagnose``) need, per term of the saturating law and per
+candidate exponent, the column ``d(currents)/d(coefficient)``: central differences of the flux-state
+rollout, all in one compiled, batched program.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._experiment import Experiment
+from ._lowered_cache import call as cached_call
+from ._rollout import predict_currents
+from ..physics import EXPONENT_CANDIDATES, MAGNETIC, MotorParams
+
+
+#: Step of the central differences of :func:`saturation_columns` (the coefficients are per unit: the
+#: currents move by ~1e-4 of the tested current; truncation ~1e-8, rounding ~1e-11 relative).
+SATURATION_STEP = 1e-4
+
+
+def saturation_columns(motor: MotorParams, experiment: Experiment) -> np.ndarray:
+    """The sensitivity of the predicted currents to each saturation coefficient at each candidate exponent.
+
+    Returns ``d[i_d, i_q]/d sat`` (A per unit), shape (3, K, M, 2): per term of ``physics.MAGNETIC``
+    (``sat_d``, ``sat_q``, ``sat_dq``) and per candidate ``j`` of its exponents
+    (``physics.EXPONENT_CANDIDATES``), at ``motor`` with that term's exponents set to candidate ``j``.
+    Central differences of the flux-state rollout, all ``2 * 3 * K`` rollouts in one compiled, batched
+    call: the score tests of ``--magnetics auto`` then cost one forward program, not a Jacobian per
+    candidate (``diagnose``). ``experiment`` must have ``saturating`` set.
+    """
+    rows = []
+    for name in MAGNETIC:
+        exponents, values = EXPONENT_CANDIDATES[name]
+        for candidate in values:
+            for sign in (1.0, -1.0):
+                changes = dict(zip(exponents, candidate))
+                changes[name] = float(getattr(motor, name)) + sign * SATURATION_STEP
+                rows.append(motor.replace(**changes))
+    batch = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x, dtype=float) for x in xs]), *rows)
+    out = np.asarray(cached_call(_batched_currents, "saturation_columns", batch, experiment))
+    count = len(EXPONENT_CANDIDATES[MAGNETIC[0]][1])
+    out = out.reshape(len(MAGNETIC), count, 2, *out.shape[1:])
+    return (out[:, :, 0] - out[:, :, 1]) / (2.0 * SATURATION_STEP)
+
+
+@jax.jit
+def _batched_currents(motors: MotorParams, experiment: Experiment) -> jnp.ndarray:
+    return jax.vmap(predict_currents, in_axes=(0, None))(motors, experiment)
