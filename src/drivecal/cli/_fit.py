@@ -65,12 +65,18 @@ def _fit_table(cal: Calibration) -> Table:
               help="Bench effects to model: 'auto' fits those the data support (delay, dead_time, offsets; "
                    "one at a time, largest evidence first, each kept only if a likelihood-ratio test supports "
                    "it), 'none' fits none, or a comma-separated list fits those.")
+@click.option("--magnetics", "magnetics", type=click.Choice(["auto", "linear", "saturating"]), default="auto",
+              show_default=True,
+              help="Magnetic model: 'auto' fits the saturation terms (d, q, cross) the data support, each with "
+                   "the exponents that fit best; 'linear' constant Ld, Lq; 'saturating' every term the plan "
+                   "can identify.")
 @click.option("--out", "out_dir", type=click.Path(), default=None,
               help="Directory for report.json, report.html and the PNG figures (created if missing; its parent "
                    "must exist).")
 @_format_option
 @click.option("--json", "as_json", is_flag=True, help="Print the result JSON on stdout instead of the table.")
-def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estimate, delay_samples, effects, out_dir,
+def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estimate, delay_samples, effects, magnetics,
+                out_dir,
                 format_path, as_json):
     """Calibrate R, Ld, Lq, lambda_m from a bench file or log (CSV, Parquet, MAT, MDF4, TDMS, HDF5).
 
@@ -84,8 +90,9 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
     LOG` proposes one).
     The motor file's values are the starting point and the prior; a parameter
     the recording cannot identify is held there and reported as such. Bench
-    effects (the inverter's delay, its dead time, sensor offsets) are found
-    from the data by default (--effects auto) and reported with the evidence;
+    effects (the inverter's delay, its dead time, sensor offsets) and the
+    magnetic saturation are found from the data by default (--effects auto,
+    --magnetics auto) and reported with the evidence;
     any parameter named in --estimate or the motor file's 'estimate' (also
     alpha_R, offset_a, offset_b) is fitted whatever the tests say.
 
@@ -134,7 +141,8 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
     console = _console(as_json)
     with console.status("checking identifiability, fitting and choosing the bench effects..."):
         selection = select_effects(experiment, bench.currents, prior, names=names, effects=chosen,
-                                   source=bench.source, fixed_delay=delay_samples is not None)
+                                   source=bench.source, fixed_delay=delay_samples is not None,
+                                   magnetics=magnetics)
         cal = selection.calibration
         saturation = check_saturation(bench, prior)
         payload = build_result(cal, bench, experiment=experiment, noise_sigma=noise, input_path=bench_path,

@@ -31,9 +31,9 @@ from typing import Any
 import numpy as np
 
 from .._stats import chi2_sf
-from ..model import Experiment, model_experiment, predicted_currents, with_experiment_delay
+from ..model import Experiment, model_experiment, predicted_currents, saturation_columns, with_experiment_delay
 from ..identify import sensitivity_jacobian
-from ..physics import MotorParams
+from ..physics import EXPONENT_CANDIDATES, MAGNETIC, MotorParams
 
 #: Family-wise false-alarm rate of the effect tests of one fit.
 ALPHA = 1e-3
@@ -55,7 +55,17 @@ ANGLE_EFFECTS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
     "encoder_offset": (("encoder_offset",), ("encoder_offset",),
                        "an encoder offset (the angle column's zero off the rotor's d axis)"),
 }
-_ALL_EFFECTS = {**EFFECTS, **ANGLE_EFFECTS}
+#: Magnetic saturation, tested as the bench effects are (``fit --magnetics auto``): each term of the
+#: saturating law (``physics._magnetics``) with its exponents chosen among ``physics.EXPONENT_CANDIDATES``,
+#: the candidate whose signature explains most of the residuals (its p-value Bonferroni-corrected for
+#: the number of candidates).
+MAGNETIC_EFFECTS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
+    "saturation_d": (("sat_d",), ("sat_d",), "magnetic saturation of the d axis (Ld changes with current)"),
+    "saturation_q": (("sat_q",), ("sat_q",), "magnetic saturation of the q axis (Lq changes with current)"),
+    "cross_saturation": (("sat_dq",), ("sat_dq",),
+                         "cross-saturation (the current on each axis changes the other axis's inductance)"),
+}
+_ALL_EFFECTS = {**EFFECTS, **ANGLE_EFFECTS, **MAGNETIC_EFFECTS}
 
 
 def _orthogonal_part(columns: np.ndarray, basis: np.ndarray) -> np.ndarray:
@@ -98,6 +108,30 @@ def score_test(residual: np.ndarray, signature: np.ndarray, fitted: np.ndarray, 
     cov = (vt[keep].T / s[keep] ** 2) @ vt[keep]
     return Score(float(proj @ proj / sigma_hat**2), int(keep.sum()), float(np.sign(e[:, 0] @ residual)),
                  pinv @ residual, sigma_hat * np.sqrt(np.diag(cov)))
+
+
+def _magnetic_scores(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
+                     effects: tuple[str, ...], residual: np.ndarray, sigma_hat: float) -> dict[str, tuple]:
+    """Per magnetic effect, ``(score, motor at its best exponents, number of candidates)``.
+
+    Every candidate of a term's exponents (``physics.EXPONENT_CANDIDATES``) is tested against the
+    fitted parameters' columns; each term keeps the candidate whose signature has the largest
+    statistic. The candidates' columns come from one batched rollout (``model.saturation_columns``).
+    """
+    if not effects:
+        return {}
+    fitted, _ = effect_signatures(motor, fit_names, experiment, ())
+    probe = model_experiment(experiment, motor, MAGNETIC)
+    columns = saturation_columns(motor, dataclasses.replace(probe, dead_time_substeps=1))
+    best: dict[str, tuple] = {}
+    for e in effects:
+        term = _ALL_EFFECTS[e][1][0]
+        names, values = EXPONENT_CANDIDATES[term]
+        for j, candidate in enumerate(values):
+            score = score_test(residual, columns[MAGNETIC.index(term), j].reshape(-1, 1), fitted, sigma_hat)
+            if e not in best or not np.isfinite(best[e][0].statistic) or score.statistic > best[e][0].statistic:
+                best[e] = (score, motor.replace(**dict(zip(names, candidate))), len(values))
+    return best
 
 
 def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
@@ -157,14 +191,20 @@ def unmodelled_effects(
     if predicted is None:
         predicted = predicted_currents(motor, base)
     residual = y - np.asarray(predicted, dtype=float).reshape(-1)
-    fitted, columns = effect_signatures(motor, fit_names, base, effects)
+    plain = tuple(e for e in effects if e not in MAGNETIC_EFFECTS)
+    magnetic = tuple(e for e in effects if e in MAGNETIC_EFFECTS)
+    scores = {}
+    if plain:
+        fitted, columns = effect_signatures(motor, fit_names, base, plain)
+        scores = {e: (score_test(residual, columns[e], fitted, sigma_hat), motor, 1) for e in plain}
+    scores.update(_magnetic_scores(motor, fit_names, base, magnetic, residual, sigma_hat))
     threshold = ALPHA / len(effects)
     delay = float(motor.delay)
     out = []
     for effect in effects:
         params, probes, what = _ALL_EFFECTS[effect]
-        score = score_test(residual, columns[effect], fitted, sigma_hat)
-        p = float(chi2_sf(score.statistic, score.dof)) if score.dof else float("nan")
+        score, at, choices = scores[effect]
+        p = float(min(1.0, choices * chi2_sf(score.statistic, score.dof))) if score.dof else float("nan")
         suspected = bool(score.dof and p < threshold)
         fix = "add " + ", ".join(params) + " to 'estimate' (motor file) or --estimate, or use --effects auto"
         if effect == "delay":
@@ -180,6 +220,10 @@ def unmodelled_effects(
                    "or --estimate, or set the encoder's zero in the drive")
         one_step = {n: {"estimate": float(getattr(motor, n)) + float(d), "se": float(se)}
                     for n, d, se in zip(probes, score.step, score.step_se)}
+        if effect in MAGNETIC_EFFECTS:
+            one_step.update({n: {"estimate": float(getattr(at, n)), "se": 0.0}
+                             for n in EXPONENT_CANDIDATES[probes[0]][0]})
+            fix = "use --magnetics auto or saturating (the default auto fits what the data support)"
         out.append({
             "effect": effect,
             "parameters": list(params),

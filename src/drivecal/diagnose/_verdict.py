@@ -35,6 +35,7 @@ import numpy as np
 
 from ..results import Status
 from ._whiteness import WHITENESS_ALPHA, WHITENESS_LAGS, ljung_box, whiteness_rule
+from ._mismatch import MAGNETIC_EFFECTS
 
 #: sigma_hat above this multiple of the stated sensor noise means mismatch.
 SIGMA_RATIO_MAX = 1.5
@@ -129,7 +130,8 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
         if choice["included"] and choice["how"] == "selected":
             shown = ", ".join(f"{n} = {v['value']:.4g} ± {1.96 * v['se']:.2g} (95 %)" for n, v in choice["estimate"].items()
                               if v["value"] is not None and v["se"] is not None)
-            details.append(f"bench effect fitted because the data support it: {choice['effect'].replace('_', ' ')}"
+            kind = "magnetic saturation" if choice["effect"] in MAGNETIC_EFFECTS else "bench effect"
+            details.append(f"{kind} fitted because the data support it: {choice['effect'].replace('_', ' ')}"
                            f" ({shown}; likelihood-ratio p = {choice['p_value']:.2g})")
     if not_ident:
         details.append(f"{', '.join(not_ident)} not identifiable by this plan: held at the prior, not calibrated")
@@ -143,4 +145,6 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
         status, headline = Status.PARTIAL, f"partially calibrated: {', '.join(not_ident)} not identifiable by this plan"
     else:
         status, headline = Status.CALIBRATED, "calibrated"
+        if (result.get("effects") or {}).get("magnetic_model") == "saturating":
+            headline += ", with magnetic saturation (the saturating law: Ld, Lq, lambda_m at zero current)"
     return {"status": status.key, "headline": headline, "details": details}

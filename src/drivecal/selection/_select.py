@@ -35,16 +35,20 @@ from typing import Any
 import numpy as np
 
 from .._stats import chi2_sf
-from ..diagnose import ALPHA, EFFECTS, unmodelled_effects
+from ..diagnose import ALPHA, EFFECTS, MAGNETIC_EFFECTS, unmodelled_effects
 from ..errors import DrivecalError
 from ..fitting import FitOptions, fit_currents
 from ..identify import assess_identifiability
 from ..model import Experiment
-from ..physics import ESTIMABLE, MotorParams
+from ..physics import ESTIMABLE, EXPONENT_CANDIDATES, EXPONENTS, MotorParams, is_saturating
 from ..results import Calibration
 
 #: Values of ``--effects`` besides a list of effect names.
 MODES: tuple[str, ...] = ("auto", "none")
+#: Values of ``--magnetics``: the data choose; the linear machine only; the saturating law always.
+MAGNETICS: tuple[str, ...] = ("auto", "linear", "saturating")
+#: Every candidate of the selection: the bench effects, then the terms of the saturating law.
+_EFFECTS = {**EFFECTS, **MAGNETIC_EFFECTS}
 
 #: A one-step delay estimate further than this (samples) from the fitted one is not a start: use the nominal.
 _DELAY_START_SPAN = 10.0
@@ -118,8 +122,10 @@ class EffectSelection:
         calibration: the final fit (its names include the included effects' parameters).
         experiment: the experiment it used.
         mode: ``"auto"``, ``"none"`` or ``"list"``.
-        choices: one :class:`EffectChoice` per effect of ``diagnose.EFFECTS``, in that order.
+        choices: one :class:`EffectChoice` per effect of ``diagnose.EFFECTS`` and of
+            ``diagnose.MAGNETIC_EFFECTS``, in that order.
         fits: how many fits the selection ran.
+        magnetics: the ``--magnetics`` mode (``auto``, ``linear``, ``saturating``).
     """
 
     calibration: Calibration
@@ -133,9 +139,17 @@ class EffectSelection:
         """The effects the final fit estimates."""
         return tuple(c.effect for c in self.choices if c.included)
 
+    magnetics: str = "linear"
+
+    @property
+    def magnetic_model(self) -> str:
+        """``"saturating"`` when the final fit includes a term of the saturating law, else ``"linear"``."""
+        return "saturating" if set(self.included) & set(MAGNETIC_EFFECTS) else "linear"
+
     def to_dict(self) -> dict[str, Any]:
-        """The result JSON's ``effects`` section."""
+        """The result JSON's ``effects`` section (the magnetic terms among them: ``magnetics``, ``magnetic_model``)."""
         return {"mode": self.mode, "included": list(self.included), "alpha": ALPHA, "fits": self.fits,
+                "magnetics": self.magnetics, "magnetic_model": self.magnetic_model,
                 "effects": [c.to_dict() for c in self.choices]}
 
 
@@ -165,6 +179,8 @@ def _start(motor: MotorParams, test: dict[str, Any]) -> MotorParams:
         value = v["estimate"]
         if not math.isfinite(value):
             continue
+        if n in ("sat_d", "sat_q", "sat_dq"):
+            value = max(value, 0.0)  # a start the law stays monotone from; the fit may still go below
         if n == "delay":
             if abs(value - float(motor.delay)) > _DELAY_START_SPAN:
                 continue
@@ -185,8 +201,9 @@ def select_effects(
     options: FitOptions = FitOptions(),
     source: str = "bench",
     fixed_delay: bool = False,
+    magnetics: str = "auto",
 ) -> EffectSelection:
-    """Fit ``names`` with the bench effects the data support (see the module docstring).
+    """Fit ``names`` with the bench effects and the magnetic law the data support (see the module docstring).
 
     Args:
         experiment: the experiment (the nominal delay ``prior.delay`` applied).
@@ -198,43 +215,127 @@ def select_effects(
         options: solver settings.
         source: label of the data.
         fixed_delay: the delay is given (``--delay``): held at ``prior.delay``, never a candidate.
+        magnetics: ``"auto"`` (the terms of the saturating law are candidates like the bench
+            effects), ``"linear"`` (never) or ``"saturating"`` (every term the plan can identify is
+            fitted, each with the exponents its score test prefers).
     """
-    requested = tuple(e for e, (params, _, _) in EFFECTS.items() if set(params) & set(names))
+    if magnetics not in MAGNETICS:
+        raise DrivecalError(f"--magnetics: unknown mode {magnetics!r}; give {', '.join(MAGNETICS)}.")
+    requested = tuple(e for e, (params, _, _) in _EFFECTS.items() if set(params) & set(names))
+    magnetic = tuple(e for e in MAGNETIC_EFFECTS if e not in requested) if magnetics != "linear" else ()
+    if magnetic or set(requested) & set(MAGNETIC_EFFECTS):
+        prior = _with_reference_current(prior, currents)
     if effects == "none" or isinstance(effects, tuple):
         listed = () if effects == "none" else effects
         fit_names = _names_with(names, tuple(n for e in listed for n in EFFECTS[e][0]))
         cal = fit_currents(experiment, currents, prior, names=fit_names, options=options, source=source)
+        fits, decided, last = 1, {}, {}
+        if magnetic:
+            cal, fits, decided, last = _add_effects(experiment, currents, prior, cal, list(magnetic), options,
+                                                    source, force=magnetics == "saturating")
         choices = []
-        for e, (params, _, _) in EFFECTS.items():
+        for e, (params, _, _) in _EFFECTS.items():
+            if e in MAGNETIC_EFFECTS and e not in requested:
+                choices.append(_choice(e, cal, decided, last, magnetics))
+                continue
             chosen = e in listed or e in requested
             est = _fitted_estimate(cal, params)
             choices.append(EffectChoice(e, chosen and bool(est), "requested" if chosen else "not tested",
                                         estimate=est, note=_note(e, chosen, "requested" if chosen else "not tested")))
-        return EffectSelection(cal, experiment, "none" if effects == "none" else "list", tuple(choices))
+        return EffectSelection(cal, experiment, "none" if effects == "none" else "list", tuple(choices), fits,
+                               magnetics)
 
     cal = fit_currents(experiment, currents, prior, names=names, options=options, source=source)
-    fits = 1
     candidates = [e for e in EFFECTS if e not in requested and not (fixed_delay and e == "delay")]
+    cal, fits, decided, last = _add_effects(experiment, currents, prior, cal, candidates + list(magnetic), options,
+                                            source, force=magnetics == "saturating")
+    choices = []
+    for e, (params, _, _) in _EFFECTS.items():
+        if e in requested:
+            choices.append(EffectChoice(e, True, "requested", estimate=_fitted_estimate(cal, params),
+                                        note=_note(e, True, "requested")))
+        elif fixed_delay and e == "delay":
+            choices.append(EffectChoice(e, False, "fixed", estimate={"delay": (float(prior.delay), 0.0)},
+                                        note=f"delay fixed at {float(prior.delay):g} samples (--delay)"))
+        else:
+            choices.append(_choice(e, cal, decided, last, magnetics))
+    return EffectSelection(cal, experiment, "auto", tuple(choices), 1 + fits, magnetics)
+
+
+def _with_reference_current(prior: MotorParams, currents: np.ndarray) -> MotorParams:
+    """``prior`` with ``i_ref`` at the data's largest current (A, two significant digits) where its law is linear.
+
+    The saturation coefficients are then per unit of what the test reached, of order one where it saturates.
+    """
+    if is_saturating(prior):
+        return prior
+    peak = float(np.max(np.abs(np.asarray(currents, dtype=float)), initial=0.0))
+    if not math.isfinite(peak) or peak <= 0.0:
+        return prior
+    return prior.replace(i_ref=float(f"{peak:.2g}"))
+
+
+def _choice(e: str, cal: Calibration, decided: dict, last: dict, magnetics: str) -> EffectChoice:
+    """The final word on effect ``e`` that the user did not name: fitted, rejected, or its last score test."""
+    params = _EFFECTS[e][0]
+    if e in MAGNETIC_EFFECTS and magnetics == "linear":
+        return EffectChoice(e, False, "not tested", note=f"{_EFFECTS[e][2]}: not tested (--magnetics linear)")
+    if e in decided and decided[e].included:  # the final fit's estimates, not those when it was added
+        return dataclasses.replace(decided[e], estimate=_fitted_estimate(cal, params))
+    if e in decided and e not in last:
+        return decided[e]
+    if e in last:
+        t = last[e]
+        how = decided[e].how if e in decided else "not supported"
+        return EffectChoice(e, False, how, "score", t["statistic"], t["dof"], t["p_value"], t["p_threshold"],
+                            _one_step(t), _note(e, False, how))
+    return EffectChoice(e, False, "not tested", note=_note(e, False, "not tested"))
+
+
+def _add_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParams, cal: Calibration,
+                 candidates: list[str], options: FitOptions, source: str, force: bool = False) -> tuple:
+    """Forward selection from ``cal`` over ``candidates`` (steps 2 to 4 of the module docstring).
+
+    With ``force`` the magnetic candidates are added whatever their tests say (``--magnetics
+    saturating``), where the plan can identify them. Returns ``(calibration, refits, decided, last)``:
+    the final fit, how many fits were run, an :class:`EffectChoice` per effect decided on, and each
+    remaining candidate's last score test.
+    """
+    candidates = list(candidates)
     decided: dict[str, EffectChoice] = {}
     last: dict[str, dict[str, Any]] = {}
-    while candidates and bool(cal.converged):
+    fits = 0
+    # A base fit that did not converge (a machine far from the base model: a saturating one fitted as
+    # linear) still shows in its residuals what is missing: one step of the search is taken from it.
+    while candidates and (bool(cal.converged) or not any(c.included for c in decided.values())):
+        tested = tuple(candidates)
+        if not bool(cal.converged) and set(candidates) & set(MAGNETIC_EFFECTS):
+            # A base fit that could not converge is far from the data: the iron's saturation, not a small
+            # bench effect, is what stops a linear model converging on a plan that identifies it.
+            tested = tuple(e for e in candidates if e in MAGNETIC_EFFECTS)
         tests = unmodelled_effects(cal.motor, cal.fit_names, experiment, currents, float(cal.sigma_hat),
-                                   effects=tuple(candidates))
+                                   effects=tested)
         last.update({t["effect"]: t for t in tests})
-        best = tests[0]
-        if not best["suspected"]:
+        forced = [t for t in tests if force and t["effect"] in MAGNETIC_EFFECTS]
+        # The machine's own law before the bench's effects: a significant saturation term is added first,
+        # so that offsets or a delay never stand in for what the iron does.
+        magnetic = [t for t in tests if t["suspected"] and t["effect"] in MAGNETIC_EFFECTS]
+        best = magnetic[0] if magnetic else tests[0] if tests[0]["suspected"] or not forced else forced[0]
+        if not best["suspected"] and not forced:
             break
         effect = best["effect"]
         candidates.remove(effect)
         start = _start(cal.motor, best)
-        trial = _names_with(cal.fit_names, EFFECTS[effect][0])
+        if not bool(cal.converged):  # no estimates to start from: the nominal motor, the test's exponents
+            start = prior.replace(**{n: v["estimate"] for n, v in best["one_step"].items() if n in EXPONENTS})
+        trial = _names_with(cal.fit_names, _EFFECTS[effect][0])
         try:
             # Judged at the fit so far with the effect at its one-step estimate: the dead time's width
             # shows only where v_dead is not zero.
             ident = assess_identifiability(experiment, start, names=trial)
         except DrivecalError:
             ident = None
-        probes = EFFECTS[effect][1]
+        probes = _EFFECTS[effect][1]
         if ident is None or not set(probes) <= set(ident.fit_names):
             decided[effect] = EffectChoice(effect, False, "not identifiable", "score", best["statistic"],
                                            best["dof"], best["p_value"], best["p_threshold"], _one_step(best),
@@ -243,52 +344,67 @@ def select_effects(
         trial = tuple(n for n in trial if n in ident.fit_names or n in cal.fit_names)
         if trial != ident.names:
             ident = assess_identifiability(experiment, start, names=trial)
-        # The prior stays the nominal motor (the search's centre and the value of what is not fitted).
-        refit = fit_currents(experiment, currents, prior, names=trial, initial=start, options=options,
+        # The prior stays the nominal motor (the search's centre and the value of what is not fitted);
+        # a magnetic term's exponents are the ones its test chose.
+        centre = prior.replace(**{n: getattr(start, n) for n in EXPONENTS + ("i_ref",)})
+        refit = fit_currents(experiment, currents, centre, names=trial, initial=start, options=options,
                              source=source, identifiability=ident)
         fits += 1
         added = len(refit.fit_names) - len(cal.fit_names)
         statistic = _lr(cal, refit) if bool(refit.converged) and added > 0 else math.nan
-        p = float(chi2_sf(statistic, added)) if math.isfinite(statistic) else math.nan
+        choices = len(EXPONENT_CANDIDATES["sat_d"][1]) if effect in MAGNETIC_EFFECTS else 1
+        p = float(min(1.0, choices * chi2_sf(statistic, added))) if math.isfinite(statistic) else math.nan
         threshold = best["p_threshold"]
-        if math.isfinite(p) and p < threshold:
-            decided[effect] = EffectChoice(effect, True, "selected", "likelihood ratio", statistic, added, p,
-                                           threshold, _fitted_estimate(refit, EFFECTS[effect][0]),
-                                           _note(effect, True, "selected"))
+        forced_in = force and effect in MAGNETIC_EFFECTS and bool(refit.converged)
+        if (math.isfinite(p) and p < threshold) or forced_in:
+            how = "selected" if math.isfinite(p) and p < threshold else "requested"
+            decided[effect] = EffectChoice(effect, True, how, "likelihood ratio", statistic, added, p,
+                                           threshold, _fitted_estimate(refit, _EFFECTS[effect][0]),
+                                           _note(effect, True, how))
             cal = refit
             # Earlier decisions stand; what is left is tested again against the larger model.
         else:
             decided[effect] = EffectChoice(effect, False, "not supported", "likelihood ratio", statistic, added, p,
                                            threshold, _one_step(best), _note(effect, False, "not supported"))
+    added_terms = [e for e, c in decided.items() if c.included and e in MAGNETIC_EFFECTS]
+    if added_terms and bool(cal.converged):
+        cal, more = _refine_exponents(experiment, currents, prior, cal, added_terms, options, source)
+        fits += more
     if candidates and bool(cal.converged):
         # The final word on what was not added: the score tests against the final fit.
         for t in unmodelled_effects(cal.motor, cal.fit_names, experiment, currents, float(cal.sigma_hat),
                                     effects=tuple(candidates)):
             last[t["effect"]] = t
-    choices = []
-    for e, (params, _, _) in EFFECTS.items():
-        if e in requested:
-            choices.append(EffectChoice(e, True, "requested", estimate=_fitted_estimate(cal, params),
-                                        note=_note(e, True, "requested")))
-        elif fixed_delay and e == "delay":
-            choices.append(EffectChoice(e, False, "fixed", estimate={"delay": (float(prior.delay), 0.0)},
-                                        note=f"delay fixed at {float(prior.delay):g} samples (--delay)"))
-        elif e in decided and decided[e].included:  # the final fit's estimates, not those when it was added
-            choices.append(dataclasses.replace(decided[e], estimate=_fitted_estimate(cal, params)))
-        elif e in decided and e not in last:
-            choices.append(decided[e])
-        elif e in last:
-            t = last[e]
-            how = decided[e].how if e in decided else "not supported"
-            choices.append(EffectChoice(e, False, how, "score", t["statistic"], t["dof"], t["p_value"],
-                                        t["p_threshold"], _one_step(t), _note(e, False, how)))
-        else:
-            choices.append(EffectChoice(e, False, "not tested", note=_note(e, False, "not tested")))
-    return EffectSelection(cal, experiment, "auto", tuple(choices), fits)
+    return cal, fits, decided, last
+
+
+def _refine_exponents(experiment: Experiment, currents: np.ndarray, prior: MotorParams, cal: Calibration,
+                      terms: list[str], options: FitOptions, source: str) -> tuple[Calibration, int]:
+    """Each added magnetic term's exponents chosen again with the whole law fitted: the candidate of least RSS.
+
+    A term's exponents were chosen by its score test against the fit it was added to; with the other
+    terms in, another candidate may fit better. One pass, term by term, each candidate refitted from the
+    current estimates (the same parameters, so the compiled fit is reused).
+    """
+    fits = 0
+    for effect in terms:
+        names, values = EXPONENT_CANDIDATES[_EFFECTS[effect][1][0]]
+        for candidate in values:
+            if all(float(getattr(cal.motor, n)) == v for n, v in zip(names, candidate)):
+                continue
+            changes = dict(zip(names, candidate))
+            centre = prior.replace(**{**{n: getattr(cal.motor, n) for n in EXPONENTS + ("i_ref",)}, **changes})
+            trial = fit_currents(experiment, currents, centre, names=cal.names,
+                                 initial=cal.motor.replace(**changes), options=options, source=source,
+                                 identifiability=cal.identifiability)
+            fits += 1
+            if bool(trial.converged) and float(trial.rss) < float(cal.rss):
+                cal = trial
+    return cal, fits
 
 
 def _note(effect: str, included: bool, how: str, ident: Any = None) -> str:
-    what = EFFECTS[effect][2]
+    what = _EFFECTS[effect][2]
     if how == "requested":
         return f"{what}: fitted as requested"
     if how == "selected":
