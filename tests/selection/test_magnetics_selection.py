@@ -26,7 +26,7 @@ def syrm_selection():
     truth = from_hinkkanen(dc.MotorParams(R=0.54, pole_pairs=2.0, J=0.015, lambda_m=0.0), i_ref=20.0, **HINKKANEN_SYRM)
     bench = engine_bench(LEVELS, truth).add_noise(0.02, 3)
     prior = dc.MotorParams(R=0.5, Ld=0.05, Lq=0.02, lambda_m=0.0, pole_pairs=2.0, J=0.015)
-    return truth, select_effects(bench.experiment(), bench.currents, prior, names=("R", "Ld", "Lq"))
+    return truth, select_effects(bench.experiment(), bench.currents, prior, names=("R", "Ld", "Lq"), magnetics="auto")
 
 
 @pytest.mark.slow
@@ -58,7 +58,7 @@ def test_no_bench_effect_stands_in_for_the_iron(syrm_selection):
 
 def test_linear_seed_motor_stays_linear(truth):
     bench = dc.engine_bench(dc.default_plan(), truth).add_noise(0.02, 5)
-    sel = select_effects(bench.experiment(), bench.currents, truth, names=dc.ESTIMATED)
+    sel = select_effects(bench.experiment(), bench.currents, truth, names=dc.ESTIMATED, magnetics="auto")
     assert sel.magnetic_model == "linear" and sel.included == ()
     choices = {c.effect: c for c in sel.choices}
     for term in ("saturation_d", "saturation_q", "cross_saturation"):
