@@ -305,9 +305,10 @@ def _add_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParam
     decided: dict[str, EffectChoice] = {}
     last: dict[str, dict[str, Any]] = {}
     fits = 0
-    # A base fit that did not converge (a machine far from the base model: a saturating one fitted as
-    # linear) still shows in its residuals what is missing: one step of the search is taken from it.
-    while candidates and (bool(cal.converged) or not any(c.included for c in decided.values())):
+    # Where saturation is a candidate, a base fit that did not converge (a saturating machine fitted as
+    # linear) still shows in its residuals what is missing: the search goes on from it until a term is in.
+    saturation = bool(set(candidates) & set(MAGNETIC_EFFECTS))
+    while candidates and (bool(cal.converged) or (saturation and not any(c.included for c in decided.values()))):
         tested = tuple(candidates)
         if not bool(cal.converged) and set(candidates) & set(MAGNETIC_EFFECTS):
             # A base fit that could not converge is far from the data: the iron's saturation, not a small
