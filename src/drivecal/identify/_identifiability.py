@@ -7,6 +7,9 @@ nominal motor (forward mode: four parameters, thousands of outputs):
   gives rank, condition number and weak parameters;
 * parameters whose column is zero are *dead*: the data does not move when they
   do (e.g. lambda_m on a locked rotor), named with the reason;
+* so are saturation coefficients the plan's currents cannot show (one current level on
+  their axis, no d- and q-axis current together: ``_magnetic_reasons``), named with the
+  segment that would show them;
 * parameters that only move together with others (a null direction of J once
   the dead ones are removed) are *confounded*;
 * the predicted 95 % CI half-widths ``t * sigma * sqrt(diag((J^T J)^-1))`` of the
@@ -30,6 +33,7 @@ from ..errors import DrivecalError
 from ..model import (Experiment, join_current_parts, model_experiment, predict_current_parts, predict_currents,
                      simulate_states)
 from ..physics import ADDITIVE_SCALE, ESTIMATED, MECHANICAL, MotorParams, dq_to_abc, search_scale
+from ._magnetic_reasons import magnetic_reasons
 
 #: A parameter whose relative sensitivity is below this fraction of the
 #: strongest one is dead: at double precision it is zero.
@@ -54,11 +58,18 @@ def sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tupl
     as an output (``Experiment.speed_outputs``) the weighted speed's rows follow (K more rows, in
     the currents' units: ``speed_weight`` A per rad/s).
     """
+    return jacobian_and_outputs(motor, experiment, names)[0]
+
+
+def jacobian_and_outputs(motor: MotorParams, experiment: Experiment,
+                         names: tuple[str, ...] = ESTIMATED) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """:func:`sensitivity_jacobian` and the predicted outputs it is the derivative of (2M or 2M + K rows), in one pass."""
     return cached_call(_sensitivity_jacobian, "sensitivity_jacobian", motor, experiment, names=tuple(names))
 
 
 @functools.partial(jax.jit, static_argnames=("names",))
-def _sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...]) -> jnp.ndarray:
+def _sensitivity_jacobian(motor: MotorParams, experiment: Experiment,
+                          names: tuple[str, ...]) -> tuple[jnp.ndarray, jnp.ndarray]:
     theta = motor.vector(names)
 
     def currents(th):
@@ -69,7 +80,11 @@ def _sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tup
         speed = parts[len(parts) - len(experiment.speed_outputs):]
         return jnp.concatenate([join_current_parts(experiment, parts).reshape(-1), *speed])
 
-    return jax.jacfwd(currents)(theta)
+    def with_value(th):
+        out = currents(th)
+        return out, out
+
+    return jax.jacfwd(with_value, has_aux=True)(theta)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,7 +98,8 @@ class Identifiability:
             finite even when rank-deficient; read ``rank`` first).
         identifiable: full rank and well conditioned.
         weak_params: parameters barely constrained though the rank is full.
-        dead_params: parameters with zero sensitivity.
+        dead_params: parameters with zero sensitivity, or hidden by the plan's structure (alpha_R at one
+            temperature, a saturation coefficient without the current levels that show it).
         confounded_params: parameters that only move together with others.
         reasons: why each non-identifiable parameter is not identifiable.
         singular_values: of the column-normalised Jacobian, descending.
@@ -414,7 +430,7 @@ def assess_identifiability(
         names: the parameters to be estimated.
     """
     experiment = model_experiment(experiment, motor, names)
-    jac = np.asarray(sensitivity_jacobian(motor, experiment, names))
+    jac, outputs = (np.asarray(a) for a in jacobian_and_outputs(motor, experiment, names))
     if not np.all(np.isfinite(jac)):
         raise DrivecalError(
             "the motor's predicted currents are not finite on this experiment (the nominal values "
@@ -426,16 +442,18 @@ def assess_identifiability(
     sensitivity = np.linalg.norm(jac_scaled, axis=0)
     strongest = float(sensitivity.max()) if sensitivity.size else 0.0
     # A structural reason (e.g. alpha_R with one temperature) makes a parameter dead even where its
-    # column is not zero but merely a copy of another's: hold it, so the other stays fitted.
-    dead = tuple(n for n, s in zip(names, sensitivity)
-                 if s <= DEAD_TOL * strongest or (n not in ESTIMATED and structural_reason(n, experiment)))
+    # column is not zero but merely a copy of another's: hold it, so the other stays fitted. So does a
+    # saturation coefficient the plan's currents cannot show (one level on its axis, no d and q together).
+    hidden = magnetic_reasons(experiment, motor, names, outputs[: 2 * experiment.num_samples].reshape(-1, 2))
+    dead = tuple(n for n, s in zip(names, sensitivity) if s <= DEAD_TOL * strongest or n in hidden
+                 or (n not in ESTIMATED and structural_reason(n, experiment)))
     live = tuple(n for n in names if n not in dead)
     live_idx = [names.index(n) for n in live]
     confounded = _confounded(jac_scaled[:, live_idx], live)
     fit_names = tuple(n for n in live if n not in confounded)
 
     report = identifiability_report(jac, names)
-    reasons = {n: _why_dead(n, experiment) for n in dead}
+    reasons = {n: hidden.get(n) or _why_dead(n, experiment) for n in dead}
     reasons.update({n: structural_reason(n, experiment)
                     or "moves the currents only together with " + ", ".join(m for m in confounded if m != n)
                     for n in confounded})
