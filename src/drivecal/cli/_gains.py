@@ -27,6 +27,22 @@ class _QFormat(click.ParamType):
         return int(match.group(1))
 
 
+class _OperatingPoint(click.ParamType):
+    name = "ID,IQ"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        parts = str(value).split(",")
+        try:
+            point = tuple(float(p) for p in parts)
+        except ValueError:
+            point = ()
+        if len(point) != 2 or not all(math.isfinite(x) for x in point):
+            self.fail(f"{value!r} is not two currents ID,IQ in A, comma-separated; write e.g. -5,20", param, ctx)
+        return point
+
+
 def _plan_number(fit_doc, key: str) -> float | None:
     """A positive number of the result's ``plan`` section (the bench's sample rate, its DC voltage), or None."""
     plan = fit_doc.get("plan")
@@ -50,6 +66,10 @@ def _plan_number(fit_doc, key: str) -> float | None:
 @click.option("--delay", type=click.FloatRange(min=0), default=None,
               help="Command delay [controller samples] (computation + PWM). Default: the result's fitted delay, "
                    "else 1.")
+@click.option("--operating-point", type=_OperatingPoint(), default=None,
+              help="Design at the operating point i_d,i_q [A] (e.g. -5,20): the plant's inductances are the "
+                   "calibrated flux law's incremental L_dd and L_qq there (equal to Ld, Lq for a linear "
+                   "calibration). Default: Ld and Lq at zero current.")
 @click.option("--vdc", type=_Positive(), default=None,
               help="DC-link voltage [V] for the voltage limit V_dc/sqrt(3) (default: the result's plan v_dc).")
 @click.option("--base-current", type=_Positive(), default=None, help="Per-unit base current [A].")
@@ -65,15 +85,17 @@ def _plan_number(fit_doc, key: str) -> float | None:
               help="Monte Carlo draws from the parameter covariance.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Monte Carlo seed.")
 @click.option("--json", "as_json", is_flag=True, help="Print the gains JSON on stdout instead of tables.")
-def gains(result_json, bandwidth, crossover, phase_margin, sample_rate, delay, vdc, base_current, base_voltage,
-          base_frequency, q_format, header_path, out_path, design, samples, seed, as_json):
+def gains(result_json, bandwidth, crossover, phase_margin, sample_rate, delay, operating_point, vdc, base_current,
+          base_voltage, base_frequency, q_format, header_path, out_path, design, samples, seed, as_json):
     """Current-loop PI gains per axis from a saved calibration, with their uncertainty.
 
     \b
     Exactly one specification: --bandwidth (closed-loop -3 dB), --crossover or
     --phase-margin, met by the discrete PI on the sampled loop with its command
     delay (--sample-rate). Gains by discrete pole-zero cancellation per axis
-    (L = Ld for d, Lq for q); their uncertainty is propagated from the
+    (L = Ld for d, Lq for q; with --operating-point the incremental L_dd and
+    L_qq at those currents, with a warning where they lie beyond the
+    calibration's data); their uncertainty is propagated from the
     parameter covariance to first order and by Monte Carlo, and the achieved
     crossover, bandwidth and phase margin are reported over true motors drawn
     from the confidence region. With --sample-rate also the firmware
@@ -108,7 +130,7 @@ def gains(result_json, bandwidth, crossover, phase_margin, sample_rate, delay, v
     result = design_current_loop(cal, bandwidth, crossover_hz=crossover, phase_margin_deg=phase_margin,
                                  sample_rate_hz=sample_rate, delay_samples=delay,
                                  delay_sample_rate_hz=_plan_number(fit_doc, "sample_rate"), num_samples=samples,
-                                 seed=seed, source=source)
+                                 seed=seed, source=source, operating_point=operating_point)
     fw = None
     if sample_rate is not None:
         v_dc, v_dc_source = vdc, "--vdc"
@@ -140,6 +162,8 @@ def _print_gains(result, console: Console, source: str) -> None:
     from rich.markup import escape
     from rich.table import Table
 
+    from ..report import AXES
+
     spec_unit = "deg" if result.spec_kind == "phase_margin" else "Hz"
     console.print(escape(f"current-loop PI gains for {source}: {result.spec_kind.replace('_', ' ')} "
                          f"{result.spec_value:g} {spec_unit}; {result.discretisation}; delay: {result.delay_source}"))
@@ -152,7 +176,16 @@ def _print_gains(result, console: Console, source: str) -> None:
                              "deg"))
     rule = ("Kp = L*w_c, Ki = R*w_c" if result.sample_rate_hz is None
             else "Kp = g*R/(1 - exp(-R*Ts/L)), Ki = g*R/Ts")
-    table = Table(title=f"gains by pole-zero cancellation: {rule}", title_justify="left")
+    if result.operating_point is None:
+        plant = "L = Ld (d), Lq (q) [H], at zero current"
+    else:
+        i_d, i_q = result.operating_point
+        plant = (f"L = incremental L_dd (d), L_qq (q) [H] at the operating point i_d = {i_d:g} A, i_q = {i_q:g} A"
+                 + (" (beyond the calibration's data)" if result.extrapolated else ""))
+        console.print(escape(f"plant inductances [H] at i_d = {i_d:g} A, i_q = {i_q:g} A: " + ", ".join(
+            f"{ax.inductance_name} = {_fmt(ax.inductance)} ({dict(AXES)[ax.axis]} = "
+            f"{_fmt(ax.inductance_at_zero_current)} at 0 A)" for ax in result.axes)))
+    table = Table(title=escape(f"gains by pole-zero cancellation: {rule}; {plant}"), title_justify="left")
     for col in ("axis", "gain [unit]", "value", "SE first-order", "SD Monte Carlo", "MC / first-order [-]",
                 "from"):
         table.add_column(col, justify="left" if col in ("axis", "gain [unit]", "from") else "right", no_wrap=True)

@@ -2,7 +2,10 @@
 
 Plant per axis (rotor at standstill, or with the speed-voltage coupling
 cancelled by feed-forward, see :mod:`drivecal.report._firmware`):
-``G(s) = 1 / (L s + R)`` with ``L = Ld`` (d axis) or ``Lq`` (q axis).
+``G(s) = 1 / (L s + R)`` with ``L = Ld`` (d axis) or ``Lq`` (q axis); at an operating point
+``(i_d, i_q)`` the calibrated flux law's incremental ``L_dd`` or ``L_qq`` there (``d psi =
+[[L_dd, L_dq], [L_dq, L_qq]] d i``: what a small current step about the point sees; a linear
+calibration has ``L_dd = Ld``, ``L_qq = Lq`` at every current).
 
 Controller (``sample_rate`` given, ``Ts = 1/fs``): the PI
 ``u[k] = Kp e[k] + x[k]``, ``x[k+1] = x[k] + Ki Ts e[k]`` (forward-Euler
@@ -37,23 +40,27 @@ A design is reachable when its phase margin is at least :data:`MIN_PHASE_MARGIN`
 in continuous time without delay: ``H = 1/s``, ``Kp = L w_c``, ``Ki = R w_c``
 (``w_c = 2 pi f``; crossover and -3 dB bandwidth coincide, the margin is 90 deg).
 
-Uncertainty: the gains are smooth functions of (R, L, and the delay where it
-was fitted); first order ``J Cov J^T`` (``J`` by central differences) and Monte
-Carlo (each motor drawn from ``N(estimate, Cov)`` gets its own design) agree up
-to the map's curvature and the sampling error. The draws also serve as true
-motors under the *fixed* calibrated gains: the achieved crossover, -3 dB
-bandwidth and phase margin, as mean and 2.5 / 97.5 % quantiles.
+Uncertainty: the gains are smooth functions of (R, L, and the delay where it was fitted; ``L`` at an
+operating point of those of Ld, Lq, lambda_m, sat_d, sat_q, sat_dq estimated, by forward-mode autodiff);
+first order ``J Cov J^T`` (``J`` by central differences) and Monte Carlo (each motor drawn from
+``N(estimate, Cov)`` gets its own design, its own flux law's ``L``) agree up to the map's curvature and the
+sampling error. The draws also serve as true motors under the *fixed* calibrated gains: the achieved
+crossover, -3 dB bandwidth and phase margin, as mean and 2.5 / 97.5 % quantiles.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ..errors import DrivecalError
+from ..physics import MAGNETIC, flux_of_currents, incremental_inductances, is_saturating
 from ..results import Calibration
 from ._firmware_loop import MIN_PHASE_MARGIN, design_gains, loop_figures, reachable
 
@@ -67,6 +74,11 @@ SPECS = {"bandwidth": ("--bandwidth", "Hz"), "crossover": ("--crossover", "Hz"),
          "phase_margin": ("--phase-margin", "deg")}
 #: The parameters the gains are made of.
 _GAIN_PARAMS = ("R", "Ld", "Lq")
+#: What the incremental inductances at an operating point are made of (where estimated).
+_FLUX_PARAMS = ("Ld", "Lq", "lambda_m") + MAGNETIC
+#: An operating point past this multiple of a saturating fit's ``i_ref`` (its data's peak |i|, to two
+#: significant digits, so up to ~5 % below it) is an extrapolation of the fitted flux law.
+EXTRAPOLATION_MARGIN = 1.05
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,17 +111,19 @@ class AxisGains:
 
     Attributes:
         axis: "d" or "q".
-        inductance_name: "Ld" or "Lq".
-        inductance, resistance: the calibrated L (H) and R (ohm) the gains use.
+        inductance_name: "Ld" or "Lq"; "L_dd" or "L_qq" at an operating point.
+        inductance, resistance: the calibrated L (H; incremental at an operating point) and R (ohm) used.
         kp, ki: proportional (V/A) and integral (V/(A*s)) gains.
         ki_ts: discrete integrator increment ``Ki Ts`` (V/A), None in continuous time.
         kp_se, ki_se: first-order standard deviations (V/A, V/(A*s)); NaN if a
             parameter they depend on was not calibrated.
         kp_sd_mc, ki_sd_mc: Monte Carlo standard deviations, same units.
-        calibrated: both R and L of this axis were identified by the fit.
+        calibrated: R and every parameter of this axis's L were identified by the fit.
         bandwidth: achieved -3 dB closed-loop bandwidth (Hz).
         phase_margin: achieved phase margin (deg).
         crossover: achieved crossover (Hz).
+        operating_point: ``(i_d, i_q)`` (A) of the incremental inductance, None: zero current (Ld, Lq).
+        inductance_at_zero_current: the calibrated Ld or Lq (H).
     """
 
     axis: str
@@ -127,24 +141,20 @@ class AxisGains:
     bandwidth: Spread
     phase_margin: Spread
     crossover: Spread | None = None
+    operating_point: tuple[float, float] | None = None
+    inductance_at_zero_current: float = math.nan
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "axis": self.axis,
-            "inductance_name": self.inductance_name,
-            "inductance": self.inductance,
-            "resistance": self.resistance,
-            "kp": self.kp,
-            "ki": self.ki,
-            "ki_ts": _num(self.ki_ts),
-            "kp_se_first_order": _num(self.kp_se),
-            "ki_se_first_order": _num(self.ki_se),
-            "kp_sd_monte_carlo": _num(self.kp_sd_mc),
-            "ki_sd_monte_carlo": _num(self.ki_sd_mc),
+            "axis": self.axis, "inductance_name": self.inductance_name, "inductance": self.inductance,
+            "resistance": self.resistance, "kp": self.kp, "ki": self.ki, "ki_ts": _num(self.ki_ts),
+            "kp_se_first_order": _num(self.kp_se), "ki_se_first_order": _num(self.ki_se),
+            "kp_sd_monte_carlo": _num(self.kp_sd_mc), "ki_sd_monte_carlo": _num(self.ki_sd_mc),
             "calibrated": self.calibrated,
             "crossover_hz": None if self.crossover is None else self.crossover.to_dict(),
-            "bandwidth_hz": self.bandwidth.to_dict(),
-            "phase_margin_deg": self.phase_margin.to_dict(),
+            "bandwidth_hz": self.bandwidth.to_dict(), "phase_margin_deg": self.phase_margin.to_dict(),
+            "operating_point_a": self.operating_point and dict(zip(("i_d", "i_q"), self.operating_point)),
+            "inductance_at_zero_current": _num(self.inductance_at_zero_current),
         }
 
 
@@ -164,6 +174,9 @@ class CurrentLoopDesign:
         delay_samples: the command delay of the loop (controller samples; 0 in continuous time).
         delay_source: where that delay came from, in words.
         limits: what the sampled loop can reach (:func:`reachable`), None in continuous time.
+        operating_point: ``(i_d, i_q)`` (A) of the plant's incremental inductances, None: zero current.
+        extrapolated: the operating point lies beyond the currents of a saturating calibration's data.
+        data_peak_current: a saturating calibration's ``i_ref`` (A, its data's peak |i|), else None.
     """
 
     bandwidth_hz: float | None
@@ -179,38 +192,41 @@ class CurrentLoopDesign:
     delay_samples: float = 0.0
     delay_source: str = "continuous time: no delay"
     limits: dict[str, float] | None = None
+    operating_point: tuple[float, float] | None = None
+    extrapolated: bool = False
+    data_peak_current: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The ``gains`` JSON (SI units: V/A, V/(A*s), Hz, deg)."""
         return {
             "specification": {"kind": self.spec_kind, "value": self.spec_value, "unit": SPECS[self.spec_kind][1]},
-            "bandwidth_hz": self.bandwidth_hz,
-            "omega_c": self.omega_c,
-            "sample_rate_hz": self.sample_rate_hz,
-            "delay_samples": self.delay_samples,
-            "delay_source": self.delay_source,
-            "reachable": self.limits,
+            "bandwidth_hz": self.bandwidth_hz, "omega_c": self.omega_c, "sample_rate_hz": self.sample_rate_hz,
+            "delay_samples": self.delay_samples, "delay_source": self.delay_source, "reachable": self.limits,
             "discretisation": self.discretisation,
             "monte_carlo": {"num_samples": self.num_samples, "seed": self.seed},
             "axes": {a.axis: a.to_dict() for a in self.axes},
             "warnings": list(self.warnings),
+            "operating_point": None if self.operating_point is None else {
+                **dict(zip(("i_d", "i_q"), self.operating_point)), "unit": "A", "extrapolated": self.extrapolated,
+                "data_peak_current": self.data_peak_current},
         }
 
 
-def _draws(cal: Calibration, estimate: np.ndarray, num_samples: int, seed: int) -> np.ndarray:
+def _draws(cal: Calibration, estimate: np.ndarray, num_samples: int, seed: int,
+           params: tuple[str, ...] = _GAIN_PARAMS) -> np.ndarray:
     """Motors from N(estimate, Cov) over the fitted names, shape (S, len(names)); the rest fixed.
 
-    Where the covariance is not finite outside the gains' parameters (R, Ld, Lq, delay), only their
-    block is drawn (the marginal of the same normal).
+    Where the covariance is not finite outside the gains' parameters (``params`` and the delay), only
+    their block is drawn (the marginal of the same normal).
     """
     rng = np.random.default_rng(seed)
     cov = np.asarray(cal.covariance, dtype=float)
     keep = list(range(len(cal.fit_names)))
     if not np.all(np.isfinite(cov)):
-        keep = [i for i, n in enumerate(cal.fit_names) if n in _GAIN_PARAMS + ("delay",)]
+        keep = [i for i, n in enumerate(cal.fit_names) if n in params + ("delay",)]
         cov = cov[np.ix_(keep, keep)]
         if not np.all(np.isfinite(cov)):  # the delay's block undefined too: draw R, Ld, Lq only
-            keep = [i for i in keep if cal.fit_names[i] in _GAIN_PARAMS]
+            keep = [i for i in keep if cal.fit_names[i] in params]
             cov = np.asarray(cal.covariance, dtype=float)[np.ix_(keep, keep)]
     idx = [cal.names.index(cal.fit_names[i]) for i in keep]
     out = np.broadcast_to(estimate, (num_samples, len(cal.names))).copy()
@@ -220,34 +236,63 @@ def _draws(cal: Calibration, estimate: np.ndarray, num_samples: int, seed: int) 
     return out
 
 
-def _gain_inputs(cal: Calibration, source: str) -> np.ndarray:
+def _gain_inputs(cal: Calibration, source: str, extra: tuple[str, ...] = ()) -> np.ndarray:
     """The estimate the gains use: the fit's, the prior's for a parameter not fitted (as the fit holds it).
 
     Raises:
-        DrivecalError: R, Ld or Lq fitted but its estimate or variance undefined, or not positive.
+        DrivecalError: R, Ld, Lq (or one of ``extra``) fitted but its estimate or variance undefined;
+            R, Ld or Lq not positive.
     """
     fix = "refit, or pass a result whose fit converged"
     estimate = np.array(cal.estimate, dtype=float)
     cov = np.asarray(cal.covariance, dtype=float)
-    for name in _GAIN_PARAMS:
+    for name in _GAIN_PARAMS + extra:
         i = cal.names.index(name)
         fitted = name in cal.fit_names
         if not math.isfinite(estimate[i]):
             if fitted:
-                raise DrivecalError(f"{source}: parameters.{name}.estimate is null; gains need every inductance "
-                                    f"and R estimated — {fix}.")
+                need = "every inductance and R" if name in _GAIN_PARAMS else "every flux-law parameter"
+                raise DrivecalError(f"{source}: parameters.{name}.estimate is null; gains need {need} "
+                                    f"estimated — {fix}.")
             estimate[i] = float(getattr(cal.prior, name))
-        if not estimate[i] > 0:
+        if name in _GAIN_PARAMS and not estimate[i] > 0:
             what = "estimate" if fitted else "prior"
             raise DrivecalError(f"{source}: parameters.{name}.{what} is {estimate[i]:.6g}; gains need a positive "
                                 f"R, Ld and Lq — {fix}.")
-    block = [cal.fit_names.index(n) for n in _GAIN_PARAMS if n in cal.fit_names]
+    block = [cal.fit_names.index(n) for n in _GAIN_PARAMS + extra if n in cal.fit_names]
     sub = cov[np.ix_(block, block)]
     if not np.all(np.isfinite(sub)):
         bad = cal.fit_names[block[int(np.argwhere(~np.isfinite(sub))[0, 0])]]
         raise DrivecalError(f"{source}: covariance of {bad} is null; the gains' uncertainty needs the covariance of "
-                            f"every fitted R and L — {fix}.")
+                            f"every fitted R and L{' and flux-law parameter' if extra else ''} — {fix}.")
     return estimate
+
+
+@functools.partial(jax.jit, static_argnames="names")
+def _axis_inductances(i_d, i_q, base, names, values, tangents):
+    """``(L_dd, L_qq)`` (H) at ``(i_d, i_q)`` of the motors ``base.with_vector(names, values)`` (rows), and
+    their derivatives along ``tangents`` (rows): each shape (rows, 2)."""
+    def at(v):
+        motor = base.with_vector(names, v)
+        l_dd, _, l_qq = incremental_inductances(*flux_of_currents(i_d, i_q, motor), motor)
+        return jnp.stack([l_dd, l_qq], axis=-1)
+
+    return jax.jvp(at, (values,), (tangents,))
+
+
+def _operating_point(cal: Calibration, estimate: np.ndarray, draws: np.ndarray, op, deps: tuple[str, ...],
+                     source: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The plant inductances (d, q) at ``op``: nominal (2,), ``d L / d deps`` (2, k), per draw (S, 2); one call."""
+    idx, k = [cal.names.index(n) for n in deps], len(deps)
+    values = np.vstack([np.tile(estimate[idx], (k, 1)), draws[:, idx]])  # the estimate once per tangent
+    tangents = np.vstack([np.eye(k), np.zeros((len(draws), k))])
+    value, slope = (np.asarray(x, dtype=float) for x in _axis_inductances(*op, cal.prior, deps, values, tangents))
+    nominal = value[0]
+    if not (np.all(np.isfinite(nominal)) and np.all(nominal > 0) and np.all(np.isfinite(slope[:k]))):
+        raise DrivecalError(f"{source}: the calibrated flux law gives no positive incremental inductance at the "
+                            f"operating point i_d = {op[0]:g} A, i_q = {op[1]:g} A (L_dd, L_qq = {nominal[0]:.4g}, "
+                            f"{nominal[1]:.4g} H); choose a current within the calibration's data.")
+    return nominal, slope[:k].T, value[k:]
 
 
 def _spec(bandwidth_hz, crossover_hz, phase_margin_deg, sample_rate_hz) -> tuple[str, float]:
@@ -322,6 +367,7 @@ def design_current_loop(
     num_samples: int = 4000,
     seed: int = 0,
     source: str = "the calibration",
+    operating_point: tuple[float, float] | None = None,
 ) -> CurrentLoopDesign:
     """PI gains for both current axes meeting one specification, their uncertainty, and the loop they achieve.
 
@@ -341,6 +387,12 @@ def design_current_loop(
         num_samples: Monte Carlo draws from the parameter covariance.
         seed: Monte Carlo seed.
         source: where ``cal`` came from (the result file), for messages.
+        operating_point: ``(i_d, i_q)`` (A) where the plant's L is the flux law's incremental
+            ``L_dd`` (d) or ``L_qq`` (q), uncertain through every estimated parameter of the law (Ld,
+            Lq, lambda_m, sat_d, sat_q, sat_dq); None: Ld, Lq. A saturating fit states its law at
+            ``i_ref``, which it sets to its data's peak |i| (two significant digits, so up to ~5 %
+            low): past ``max(|i_d|, |i_q|) > 1.05 * i_ref`` the inductances extrapolate the law (a
+            warning; ``extrapolated``). A linear calibration's are Ld, Lq at any current: no warning.
 
     A parameter the fit did not identify keeps its prior value (and the
     gains that use it have no uncertainty, with a warning).
@@ -351,7 +403,8 @@ def design_current_loop(
             ``MIN_PHASE_MARGIN`` of margin (the message says what it can), R,
             Ld or Lq not estimated (null, or not positive), the covariance of a
             fitted one undefined, or so wide that (almost) every Monte Carlo
-            draw has a non-positive R or L.
+            draw has a non-positive R or L; an operating point that is not two
+            finite currents, or where the law gives no positive inductance.
     """
     if sample_rate_hz is not None and not (sample_rate_hz > 0 and math.isfinite(sample_rate_hz)):
         raise DrivecalError(f"--sample-rate {sample_rate_hz}: must be a positive number of Hz, e.g. 20000.")
@@ -359,16 +412,36 @@ def design_current_loop(
     if not all(n in cal.names for n in _GAIN_PARAMS):
         raise DrivecalError(f"{source}: the result does not estimate R, Ld and Lq; gains need all three.")
     fs = sample_rate_hz
-    estimate = _gain_inputs(cal, source)
+    try:
+        op = None if operating_point is None else tuple(float(x) for x in operating_point)
+    except (TypeError, ValueError):
+        op = ()
+    if op is not None and (len(op) != 2 or not all(map(math.isfinite, op))):
+        raise DrivecalError(f"--operating-point {operating_point}: must be two finite currents ID,IQ in A, e.g. -5,20.")
+    deps = () if op is None else tuple(n for n in _FLUX_PARAMS if n in cal.names)  # what L there is made of
+    extra = tuple(n for n in deps if n not in _GAIN_PARAMS)
+    estimate = _gain_inputs(cal, source, extra)
     delay, delay_scale, delay_source, warnings = _delay(cal, estimate, fs, delay_samples, delay_sample_rate_hz)
     est = dict(zip(cal.names, estimate))
     fit_idx = {n: i for i, n in enumerate(cal.fit_names)}
     delay_fitted = (fs is not None and delay_samples is None and "delay" in fit_idx and "delay" in cal.names
                     and math.isfinite(est["delay"]))
     cov = np.asarray(cal.covariance, dtype=float)
-    draws = _draws(cal, estimate, num_samples, seed)
+    draws = _draws(cal, estimate, num_samples, seed, _GAIN_PARAMS + extra)
     col = {n: draws[:, i] for i, n in enumerate(cal.names)}
     ok = np.all(draws[:, [cal.names.index(n) for n in _GAIN_PARAMS]] > 0, axis=1)
+    # per axis, the plant's L: the parameters it is made of, its derivatives over them, per draw, at the estimate
+    chain = {ln: ([ln], np.ones(1), col[ln], est[ln]) for _, ln in AXES}
+    peak = float(cal.prior.i_ref) if is_saturating(cal.motor) else None
+    extrapolated = op is not None and peak is not None and max(map(abs, op)) > EXTRAPOLATION_MARGIN * peak
+    if op is not None:
+        l_op, slope, l_draws = _operating_point(cal, estimate, draws, op, deps, source)
+        ok &= np.all(np.isfinite(l_draws) & (l_draws > 0), axis=1)
+        chain = {ln: (list(deps), slope[a], l_draws[:, a], float(l_op[a])) for a, (_, ln) in enumerate(AXES)}
+        if extrapolated:
+            warnings.append(f"the operating point i_d = {op[0]:g} A, i_q = {op[1]:g} A lies beyond the currents "
+                            f"the calibration's data reached (peak |i| about i_ref = {peak:g} A): its incremental "
+                            "inductances extrapolate the fitted saturation law")
     if delay_fitted:
         ok &= np.isfinite(col["delay"])
     if ok.sum() < 2:
@@ -386,7 +459,8 @@ def design_current_loop(
 
     axes = []
     for axis, lname in AXES:
-        r, ind = est["R"], est[lname]
+        l_names, l_slope, l_col, ind = chain[lname]
+        r = est["R"]
         nominal = {"R": r, "L": ind, "delay": delay}
         kp, ki = (float(np.squeeze(g)) for g in gains_of(nominal))
         ref = value if kind != "phase_margin" else fs * 1e-4  # the search reaches down to fs * 1e-7
@@ -398,48 +472,38 @@ def design_current_loop(
             if (value >= 0.5 * fs or not (kp > 0 and ki > 0) or not pm0 >= MIN_PHASE_MARGIN - 1e-6
                     or not abs(met - value) <= 1e-6 * value):
                 raise DrivecalError(_not_reachable(kind, value, axis_limits, fs, delay))
-        # First order: central differences of the design map over the parameters it is made of.
-        names = [("R", "R"), ("L", lname)] + ([("delay", "delay")] if delay_fitted else [])
-        jac = np.zeros((2, len(names)))
-        for j, (key, pname) in enumerate(names):
+        # First order: central differences of the design map over (R, L, delay), L chained to its parameters.
+        keys = ["R", "L"] + (["delay"] if delay_fitted else [])
+        jac = np.zeros((2, len(keys)))
+        for j, key in enumerate(keys):
             step = 1e-6 * (abs(nominal[key]) if key != "delay" else 1.0)
-            hi, lo = dict(nominal), dict(nominal)
-            hi[key] = nominal[key] + step
-            lo[key] = nominal[key] - step
+            hi, lo = ({**nominal, key: nominal[key] + h} for h in (step, -step))
             scale = delay_scale if key == "delay" else 1.0
             jac[:, j] = [(float(np.squeeze(a)) - float(np.squeeze(b))) / (2 * step) * scale
                          for a, b in zip(gains_of(hi), gains_of(lo))]
-        uses = np.abs(jac) * np.abs([est[p] if p != "delay" else 1.0 for _, p in names]) > 1e-7 * np.abs(
-            [[kp], [ki]])
-        known = np.array([p in fit_idx for _, p in names])
-        fitted = [fit_idx[p] for _, p in names if p in fit_idx]
+        names = ["R"] + l_names + keys[2:]
+        jac = np.concatenate([jac[:, :1], jac[:, 1:2] * l_slope[None, :], jac[:, 2:]], axis=1)
+        size = [1.0 if p == "delay" else max(abs(est[p]), 1.0) if p in MAGNETIC else abs(est[p]) for p in names]
+        uses = np.abs(jac) * np.array(size) > 1e-7 * np.abs([[kp], [ki]])
+        known = np.array([p in fit_idx for p in names])
+        fitted = [fit_idx[p] for p in names if p in fit_idx]
         j_fit = jac[:, known]
         first = np.sqrt(np.diag(j_fit @ cov[np.ix_(fitted, fitted)] @ j_fit.T)) if fitted else np.full(2, np.nan)
         defined = ~np.any(uses & ~known, axis=1)
-        kp_mc, ki_mc = gains_of({"R": col["R"][ok], "L": col[lname][ok], "delay": d_draws})
+        kp_mc, ki_mc = gains_of({"R": col["R"][ok], "L": l_col[ok], "delay": d_draws})
         mc = np.array([np.std(kp_mc, ddof=1), np.std(ki_mc, ddof=1)])
-        fc, bw, pm = loop_figures(kp, ki, col["R"][ok], col[lname][ok], fc0 if math.isfinite(fc0) else ref, fs,
-                                  d_draws)
-        calibrated = "R" in fit_idx and lname in fit_idx
+        fc, bw, pm = loop_figures(kp, ki, col["R"][ok], l_col[ok], fc0 if math.isfinite(fc0) else ref, fs, d_draws)
+        need = ["R", lname] + [p for j, p in enumerate(names) if uses[:, j].any() and p not in ("R", lname, "delay")]
+        calibrated = all(p in fit_idx for p in need)
+        se, sd = (np.where(defined, x, math.nan) for x in (first, mc))
         axes.append(AxisGains(
-            axis=axis,
-            inductance_name=lname,
-            inductance=float(ind),
-            resistance=float(r),
-            kp=kp,
-            ki=ki,
-            ki_ts=None if fs is None else ki / fs,
-            kp_se=float(first[0]) if defined[0] else math.nan,
-            ki_se=float(first[1]) if defined[1] else math.nan,
-            kp_sd_mc=float(mc[0]) if defined[0] else math.nan,
-            ki_sd_mc=float(mc[1]) if defined[1] else math.nan,
-            calibrated=calibrated,
-            bandwidth=Spread.of(bw0, bw),
-            phase_margin=Spread.of(pm0, pm),
-            crossover=Spread.of(fc0, fc),
-        ))
+            axis=axis, inductance_name=lname if op is None else {"Ld": "L_dd", "Lq": "L_qq"}[lname],
+            inductance=float(ind), resistance=float(r), kp=kp, ki=ki, ki_ts=None if fs is None else ki / fs,
+            kp_se=float(se[0]), ki_se=float(se[1]), kp_sd_mc=float(sd[0]), ki_sd_mc=float(sd[1]),
+            calibrated=calibrated, bandwidth=Spread.of(bw0, bw), phase_margin=Spread.of(pm0, pm),
+            crossover=Spread.of(fc0, fc), operating_point=op, inductance_at_zero_current=float(est[lname])))
         if not calibrated:
-            missing = [n for n in ("R", lname) if n not in fit_idx]
+            missing = [n for n in need if n not in fit_idx]
             warnings.append(f"{axis} axis: {', '.join(missing)} not identified by this calibration; its gains use "
                             "the prior value and their uncertainty is unknown")
     if fs is None:
@@ -448,17 +512,8 @@ def design_current_loop(
         disc = (f"discrete PI at {fs:g} Hz: u[k] = Kp e[k] + x[k], x[k+1] = x[k] + Ki*Ts e[k] (forward-Euler "
                 f"integrator), its zero on the plant pole exp(-R Ts/L), command delay {delay:.4g} sample(s)")
     return CurrentLoopDesign(
-        bandwidth_hz=value if kind == "bandwidth" else None,
-        omega_c=2.0 * math.pi * axes[0].crossover.nominal,
-        sample_rate_hz=None if fs is None else float(fs),
-        discretisation=disc,
-        num_samples=int(num_samples),
-        seed=int(seed),
-        axes=tuple(axes),
-        warnings=tuple(warnings),
-        spec_kind=kind,
-        spec_value=value,
-        delay_samples=float(delay),
-        delay_source=delay_source,
-        limits=limits,
-    )
+        bandwidth_hz=value if kind == "bandwidth" else None, omega_c=2.0 * math.pi * axes[0].crossover.nominal,
+        sample_rate_hz=None if fs is None else float(fs), discretisation=disc, num_samples=int(num_samples),
+        seed=int(seed), axes=tuple(axes), warnings=tuple(warnings), spec_kind=kind, spec_value=value,
+        delay_samples=float(delay), delay_source=delay_source, limits=limits, operating_point=op,
+        extrapolated=extrapolated, data_peak_current=peak)
