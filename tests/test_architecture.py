@@ -27,6 +27,7 @@ LAYERS: tuple[frozenset[str], ...] = tuple(frozenset(x) for x in (
     {"bench"},
     {"identify"},
     {"results"},
+    {"maps"},
     {"fitting"},
     {"diagnose"},
     {"selection"},

@@ -65,7 +65,7 @@ def _fit_table(cal: Calibration) -> Table:
               help="Bench effects to model: 'auto' fits those the data support (delay, dead_time, offsets; "
                    "one at a time, largest evidence first, each kept only if a likelihood-ratio test supports "
                    "it), 'none' fits none, or a comma-separated list fits those.")
-@click.option("--magnetics", "magnetics", type=click.Choice(["auto", "linear", "saturating"]), default="linear",
+@click.option("--magnetics", "magnetics", type=click.Choice(["auto", "linear", "saturating"]), default="auto",
               show_default=True,
               help="Magnetic model: 'auto' fits the saturation terms (d, q, cross) the data support, each with "
                    "the exponents that fit best; 'linear' constant Ld, Lq; 'saturating' every term the plan "
@@ -145,10 +145,16 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
                                    magnetics=magnetics)
         cal = selection.calibration
         saturation = check_saturation(bench, prior)
+        maps = None
+        if selection.magnetic_model == "saturating":
+            from ..maps import flux_maps
+
+            maps = flux_maps(cal, bench.currents)
         payload = build_result(cal, bench, experiment=experiment, noise_sigma=noise, input_path=bench_path,
                                motor_file=motor_path, measured_speed=speed_mode == "input" and bench.has_measured_speed,
                                saturation=saturation.to_dict() if saturation.tested else None,
-                               effects=selection.to_dict(), tolerance=motor_file.tolerance)
+                               effects=selection.to_dict(), tolerance=motor_file.tolerance,
+                               flux_maps=None if maps is None else maps.to_dict())
         if out_dir is not None:
             written = _write_fit_outputs(cal, payload, out_dir)
     status = Status(payload["verdict"]["status"])
@@ -168,6 +174,8 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
         console.print(f"  [red]{name}[/red]: {why}")
     console.print(_fit_table(cal))
     console.print(_effects_line(selection))
+    if maps is not None:
+        console.print(escape(str(maps)))
     verdict = payload["verdict"]
     colour = "green" if status is Status.CALIBRATED else "red"
     console.print(f"verdict: [{colour}]{escape(verdict['headline'])}[/{colour}]")

@@ -162,6 +162,10 @@ def _figures(fit: Mapping[str, Any], label: str) -> list[tuple[str, str]]:
                 figure_data_uri(plots.identifiability_figure({label: cal.identifiability}))))
     if len(cal.fit_names) >= 2:
         out.append(("Correlation of the fitted parameters.", figure_data_uri(plots.correlation_figure(cal))))
+    if fit.get("flux_maps"):
+        out.append(("Flux linkages and incremental inductances of the calibrated law with 95 % bands, over the "
+                    "currents the test reached (dotted where extrapolated).",
+                    figure_data_uri(plots.flux_maps_figure(fit["flux_maps"]))))
     return out
 
 

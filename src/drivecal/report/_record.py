@@ -15,7 +15,9 @@ import numpy as np
 
 from ..data import BenchData, Tolerance
 from ..diagnose import residual_checks, unmodelled_effects, verdict
+from ..maps import flux_maps
 from ..model import Experiment, model_experiment, predicted_currents
+from ..physics import MAGNETIC, is_saturating
 from ..plan import Plan, plan_to_dict
 from ..results import (NOT_RECORDED, Calibration, Status, bench_sha256, file_sha256, judge_spec, result_document,
                        segment_residuals)
@@ -68,6 +70,7 @@ def build_result(
     saturation: Any = NOT_RECORDED,
     effects: Any = NOT_RECORDED,
     tolerance: dict[str, Tolerance] | None = None,
+    flux_maps: Any = None,
 ) -> dict[str, Any]:
     """The full result JSON of one fit (a plain, JSON-ready dict).
 
@@ -87,6 +90,8 @@ def build_result(
         effects: the bench-effect selection's dict (``EffectSelection.to_dict()``; ``drivecal fit`` records it).
         tolerance: the motor file's specification (``MotorFile.tolerance``): when given (non-empty) the
             result's ``spec`` section judges the estimates against it (:func:`drivecal.results.judge_spec`).
+        flux_maps: the maps' section (``drivecal.maps.FluxMaps.to_dict()``) when already computed; else
+            computed here over the bench's currents where the calibrated law saturates.
     """
     segments = segment_traces(calibration, bench, experiment)
     stated = float(noise_sigma) if noise_sigma is not None else None
@@ -106,6 +111,16 @@ def build_result(
                            plan=plan_to_dict(plan) if plan is not None else None, motor_file=motor_file,
                            input_sha256=input_sha256, input_path=input_path, measured_speed=measured_speed,
                            saturation=saturation, effects=effects,
+                           flux_maps=_maps_section(calibration, bench, flux_maps),
                            spec=NOT_RECORDED if not tolerance else judge_spec(
                                calibration.names, calibration.estimate, calibration.ci95, calibration.identifiable,
                                tolerance, Status(judged["status"])).to_dict())
+
+
+def _maps_section(calibration: Calibration, bench: BenchData, given: Any) -> Any:
+    """The ``flux_maps`` section: ``given``, else computed where the calibrated law saturates, else not recorded."""
+    if given is not None:
+        return given
+    if not (is_saturating(calibration.motor) or set(MAGNETIC) & set(calibration.names)):
+        return NOT_RECORDED
+    return flux_maps(calibration, bench.currents).to_dict()

@@ -214,3 +214,42 @@ def correlation_figure(calibration: Calibration):
     ax.set_title("Parameter correlation")
     fig.tight_layout()
     return fig
+
+
+def flux_maps_figure(section: Mapping):
+    """The flux maps and incremental inductances with their 95 % bands, from a result's ``flux_maps`` section.
+
+    Top: ``psi_d`` (Wb) against ``i_d`` and ``psi_q`` against ``i_q`` (A); bottom: ``L_dd``, ``L_qq``
+    (mH). One line per value of the other current (up to four, zero among them), its band shaded;
+    solid where the data tested the point, dotted where it is extrapolated.
+    """
+    i_d, i_q = np.asarray(section["i_d"], float), np.asarray(section["i_q"], float)
+    tested = np.asarray(section["tested"], bool)
+    maps = {k: {p: np.asarray(v[p], dtype=float) for p in ("value", "low", "high")}
+            for k, v in section["maps"].items()}
+    fig, axes = plt.subplots(2, 2, figsize=(9.6, 7.0), sharex="col")
+    for col, (axis, grid, other, flux, ind) in enumerate((("d", i_d, i_q, "psi_d", "L_dd"),
+                                                          ("q", i_q, i_d, "psi_q", "L_qq"))):
+        picks = sorted(set(np.linspace(0, len(other) - 1, 4).round().astype(int)) | {int(np.argmin(np.abs(other)))})
+        for n, k in enumerate(picks[:5]):
+            def line(name):
+                m = maps[name]
+                sel = (slice(None), k) if axis == "d" else (k, slice(None))
+                return m["value"][sel], m["low"][sel], m["high"][sel], tested[sel]
+
+            label = f"i_{'q' if axis == 'd' else 'd'} = {other[k]:.3g} A"
+            for row, name, scale in ((0, flux, 1.0), (1, ind, 1e3)):
+                value, low, high, ok = line(name)
+                ax = axes[row, col]
+                ax.fill_between(grid, low * scale, high * scale, color=f"C{n}", alpha=0.25, lw=0)
+                ax.plot(grid, np.where(ok, value, np.nan) * scale, color=f"C{n}", lw=1.4, label=label)
+                ax.plot(grid, value * scale, color=f"C{n}", lw=0.8, ls=":")
+        axes[0, col].set_ylabel(f"{flux} [Wb]")
+        axes[1, col].set_ylabel(f"{ind} [mH]")
+        axes[1, col].set_xlabel(f"i_{axis} [A]")
+        axes[0, col].legend(fontsize=7)
+        for ax in axes[:, col]:
+            ax.grid(alpha=0.3)
+    fig.suptitle("Flux and incremental inductance with 95 % bands (dotted: extrapolated)")
+    fig.tight_layout()
+    return fig

@@ -15,7 +15,7 @@ import numpy as np
 
 from .._stats import t_ppf
 from ..identify import Identifiability
-from ..physics import ADDITIVE_SCALE, FIXED, MECHANICAL, NUISANCE, UNITS, MotorParams
+from ..physics import ADDITIVE_SCALE, EXPONENTS, FIXED, MAGNETIC, MECHANICAL, NUISANCE, UNITS, MotorParams
 from .._status import solver_message
 from ._record import validate_fit
 
@@ -285,7 +285,10 @@ class Calibration:
         """A ``jaxonomy.library.drives.PMSM`` block configured with this calibration.
 
         Estimates for the identifiable parameters, the prior for the rest and
-        for the fixed ones (pole_pairs, J, B, T_load).
+        for the fixed ones (pole_pairs, J, B, T_load). Where the calibrated law
+        saturates, the block is the PMSM with flux-linkage states and the same
+        current-of-flux law (``drivecal.bench.pmsm_block`` gives it): its currents
+        are the model's.
 
         Args:
             locked: clamp the rotor (standstill bench), fixed when the block is built.
@@ -349,6 +352,7 @@ class Calibration:
             else:
                 lines.append(f"    {n:<9} {UNITS[n]:<4} {self.estimate[i]:>12.6g} {'-':>10} {'held at prior':>27} "
                              f"{'-':>12}  NO")
+        lines += self._magnetic_lines()
         pairs = self.correlations(threshold=0.1)
         lines.append("[[Correlations]] (unreported correlations are < 0.100)")
         lines += [f"    C({a}, {b}){'':<{max(0, 16 - len(a) - len(b))}} = {r:+.4f}" for a, b, r in pairs] or [
@@ -358,6 +362,17 @@ class Calibration:
             lines.append("[[Warnings]]")
             lines += [f"    {w}" for w in warnings]
         return "\n".join(lines)
+
+    def _magnetic_lines(self) -> list[str]:
+        """The saturating law's settings, where the calibrated motor saturates (else nothing)."""
+        m = self.motor
+        if not (set(MAGNETIC) & set(self.names)) and not any(float(getattr(m, n)) != 0.0 for n in MAGNETIC):
+            return []
+        exps = ", ".join(f"{n} = {float(getattr(m, n)):g}" for n in EXPONENTS)
+        return ["[[Magnetic law]]",
+                "    self- and cross-saturation (Hinkkanen 2017) about the magnet's flux; Ld, Lq at zero current",
+                f"    exponents {exps}; coefficients per unit at i_ref = {float(m.i_ref):g} A",
+                "    maps with 95 % bands: drivecal.maps.flux_maps(cal, bench.currents)"]
 
     def _repr_html_(self) -> str:
         """Jupyter: the summary table of the HTML report."""

@@ -15,6 +15,8 @@ identifiability, fixed, ...) plus the sections :func:`result_document` adds:
   for the synthetic bench of its bench-file CSV bytes;
 * ``measured_speed``, ``saturation`` and ``drivecal_version`` when the fit
   came from a bench file (``drivecal fit``);
+* ``flux_maps`` where the calibrated law saturates: ``psi_d``, ``psi_q``, ``L_dd``,
+  ``L_dq``, ``L_qq`` on a current grid with their 95 % bands (``drivecal.maps``);
 * ``versions``: drivecal, jax, jaxonomy, jaxterity, optimistix, numpy,
   matplotlib, python.
 
@@ -93,8 +95,8 @@ def segment_residuals(segments: list[dict[str, Any]]) -> list[tuple[str, np.ndar
 def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], residuals: dict[str, Any],
                     verdict: dict[str, Any], plan: dict[str, Any] | None, motor_file: str | os.PathLike | None,
                     input_sha256: str, input_path: str | os.PathLike | None, measured_speed: Any = NOT_RECORDED,
-                    saturation: Any = NOT_RECORDED, effects: Any = NOT_RECORDED, spec: Any = NOT_RECORDED
-                    ) -> dict[str, Any]:
+                    saturation: Any = NOT_RECORDED, effects: Any = NOT_RECORDED, spec: Any = NOT_RECORDED,
+                    flux_maps: Any = NOT_RECORDED) -> dict[str, Any]:
     """One fit's full result JSON from its parts (each already JSON-ready).
 
     Args:
@@ -112,6 +114,8 @@ def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], resi
             the mode, and per effect whether it was included, the evidence and the estimate.
         spec: the judgement against the motor file's tolerances (``SpecJudgement.to_dict()``), recorded
             only when the motor file has a ``[tolerance]`` table.
+        flux_maps: the flux and incremental-inductance maps with their bands (``drivecal.maps.FluxMaps.to_dict()``),
+            recorded where the calibrated law saturates.
     """
     doc = dict(fit)
     doc["segments"] = segments
@@ -134,6 +138,8 @@ def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], resi
         doc["effects"] = effects
     if spec is not NOT_RECORDED:
         doc["spec"] = spec
+    if flux_maps is not NOT_RECORDED:
+        doc["flux_maps"] = flux_maps
     return doc
 
 
@@ -432,7 +438,7 @@ def _validate_sections(c: _Check, d: dict, prefix: str) -> None:
         c.obj(e, f"{prefix}residuals.unmodelled_effects[{i}]")
     c.obj(d.get("plan"), f"{prefix}plan", null=True)
     c.string(d.get("motor_file"), f"{prefix}motor_file", null=True)
-    for k in ("input", "versions", "saturation"):
+    for k in ("input", "versions", "saturation", "flux_maps"):
         c.obj(d.get(k), f"{prefix}{k}", null=True)
     chosen = c.obj(d.get("effects"), f"{prefix}effects", null=True) or {}
     c.string(chosen.get("mode", "auto"), f"{prefix}effects.mode")
