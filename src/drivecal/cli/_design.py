@@ -42,10 +42,16 @@ def design(plan_path, motor_path, noise, as_json, optimize, budget, out_path):
     parameter would get at the given noise. Exit status 2 when the plan is
     infeasible or cannot identify every parameter.
 
+    A motor file with a saturating magnetic law (sat_d, sat_q, sat_dq) has
+    its peak currents predicted with that law.
+
     With --optimize --out OPT.toml the plan is improved first (D-optimal: the
     smallest predicted confidence volume, same segments, within the limits and
     --budget) and written to OPT.toml; the predicted intervals before and
-    after and the volume ratio are printed.
+    after and the volume ratio are printed. Saturation coefficients to
+    estimate that the plan cannot show (one current level on an axis, no d
+    and q current together) first get the locked steps `drivecal plan` lays
+    out for them, before the first free segment.
     """
     if optimize:
         _design_optimize(plan_path, motor_path, noise, as_json, budget, out_path)
@@ -84,7 +90,7 @@ def _design_optimize(plan_path, motor_path, noise, as_json, budget, out_path) ->
     if out_path is None:
         raise click.UsageError("--optimize needs --out OPT.toml, the improved plan file to write")
     out = _check_out(out_path, "--out", example="out/optimal_plan.toml")
-    from ..design import load_plan_waveforms, optimize_plan
+    from ..design import load_plan_waveforms, optimize_plan, with_saturation_steps
     from ..identify import check_requested
     from ..model import Experiment
     from ..plan import write_plan
@@ -93,7 +99,13 @@ def _design_optimize(plan_path, motor_path, noise, as_json, budget, out_path) ->
     motor_file = _load_motor(motor_path)
     if motor_file.estimate is not None:
         check_requested(motor_file.names, Experiment.from_plan(plan), plan_path)
+    plan, added = with_saturation_steps(plan, motor_file.motor, motor_file.names)
+    for seg in plan.segments:
+        if seg.name in added:
+            specs.update({(seg.name, "v_d"): float(seg.v_d), (seg.name, "v_q"): float(seg.v_q)})
     console = _console(as_json)
+    if added:
+        console.print(f"added {len(added)} locked step(s) that show the magnetic saturation: {', '.join(added)}")
     with console.status("optimizing the plan (D-optimal: BFGS through the sensitivity Jacobian)..."):
         result = optimize_plan(plan, motor_file.motor, waveforms_spec=specs, budget=budget,
                                noise_sigma=noise, names=motor_file.names)
@@ -103,7 +115,8 @@ def _design_optimize(plan_path, motor_path, noise, as_json, budget, out_path) ->
     tables = {key: spec for key, spec in result.waveforms_after.items() if isinstance(spec, dict)}
     write_plan(out, result.plan_after, tables, header=header)
     if as_json:
-        click.echo(json.dumps({"plan": str(plan_path), "out": str(out), **result.to_dict()}, indent=2))
+        click.echo(json.dumps({"plan": str(plan_path), "out": str(out), "added_segments": list(added),
+                               **result.to_dict()}, indent=2))
         return
     _print_optimal(result, plan_path, out, console)
 
@@ -202,3 +215,5 @@ def _print_design(report, plan_path, console: Console) -> None:
         if n in ident.reasons:
             colour = "yellow" if n in ident.fit_names else "red"
             console.print(f"  [{colour}]{n}[/{colour}]: {escape(ident.reasons[n])}")
+    for note in report.notes:
+        console.print(f"  note: {escape(note)}")

@@ -44,6 +44,16 @@ def plan_command(motor_path, vdc, imax, max_speed, budget, sample_rate, noise, e
         the no-load speed), a few mechanical time constants long;
       - sample rate: >= 10 samples per electrical time constant and
         <= 0.1 electrical rad per sample.
+    With sat_d, sat_q or sat_dq to estimate (magnetic saturation) the
+    locked steps show it: on each saturating axis three steps with steady
+    currents of 1/3, 2/3 and all of 0.8 x --imax (v = i*R), and for sat_dq
+    two combined steps with both axes energised, (+d,+q) and (+d,-q), each
+    axis at 0.8/sqrt(2) x --imax; a motor without a magnet (lambda_m = 0, a
+    synchronous reluctance motor) gets locked steps only. Peak currents are
+    predicted with the motor's saturating law where it has one (sat_d,
+    sat_q, sat_dq in the motor file); where it has none, the free segments
+    are sized so that a motor whose Ld and Lq fall to 50 % still stays
+    under --imax (the margin is printed).
     With J, B, T_coulomb or T_load to estimate (--estimate or the motor
     file's 'estimate') the spin-up runs on at a steady speed and the
     mechanical test continues it (continue = true): a low-speed run at a
@@ -105,6 +115,8 @@ def _print_plan(report, out, console: Console) -> None:
     console.print(seg_table)
     console.print(f"identifiability: rank {ident.rank}/{len(ident.names)}, condition number "
                   f"{ident.condition_number:.3g} -> [green]identifiable[/green]")
+    for note in report.notes:
+        console.print(f"  note: {escape(note)}")
     table = Table(title=f"predicted 95 % intervals at noise {ident.noise_sigma * 1e3:.4g} mA", title_justify="left")
     for col in ("parameter", "unit", "nominal", "± 95 % CI", "rel. [%]"):
         table.add_column(escape(col), justify="left" if col in ("parameter", "unit") else "right", no_wrap=True)

@@ -6,19 +6,22 @@ from ._autoplan import (CURRENT_MARGIN, LOCKED_TIME_CONSTANTS, MAX_SAMPLE_RATE, 
                         MIN_SAMPLES_PER_TIME_CONSTANT, MIN_SAMPLE_RATE, MIN_SEGMENT_SAMPLES, MIN_SPIN_TIME_CONSTANTS,
                         MotorTimes, NOISE_FRACTION, PLAN_MAX_ELECTRICAL_STEP, SAMPLES_PER_TIME_CONSTANT,
                         SPEED_FRACTION, SPIN_TIME_CONSTANTS, STEP_CURRENT_FRACTION, VOLTAGE_FRACTION, auto_design,
-                        auto_plan)
+                        auto_plan, with_saturation_steps)
 from ._design_space import MIN_DURATION_FRACTION, infer_waveforms, load_plan_waveforms
 from ._mechanical import (FRICTION_SE, LOW_SPEED_FRACTION, MAX_FRICTION_SAMPLES, SETTLE_SPIN_TIMES, friction_samples,
                           mechanical_segments)
+from ._saturation_plan import (COMBINED_SIGNS, SATURATED_INDUCTANCE_FRACTION, SATURATION_LEVELS,
+                               SATURATION_TOP_FRACTION)
 from ._optimal import (LIMIT_MARGIN, PEAK_WINDOW_SHARPNESS, SCALE_SHARPNESS, SOFTMAX_SHARPNESS, OptimalDesign,
                        optimize_plan, predicted_covariance, speed_limit)
 
-__all__ = ["CURRENT_MARGIN", "DesignReport", "FRICTION_SE", "LIMIT_MARGIN", "LOCKED_TIME_CONSTANTS",
+__all__ = ["COMBINED_SIGNS", "CURRENT_MARGIN", "DesignReport", "FRICTION_SE", "LIMIT_MARGIN", "LOCKED_TIME_CONSTANTS",
            "LOW_SPEED_FRACTION", "MAX_ELECTRICAL_STEP", "MAX_FRICTION_SAMPLES", "MAX_SAMPLE_RATE",
            "MIN_DURATION_FRACTION", "MIN_LOCKED_TIME_CONSTANTS", "MIN_SAMPLES_PER_TIME_CONSTANT", "MIN_SAMPLE_RATE",
            "MIN_SEGMENT_SAMPLES", "MIN_SPIN_TIME_CONSTANTS", "MotorTimes", "NOISE_FRACTION", "OptimalDesign",
-           "PEAK_WINDOW_SHARPNESS", "PLAN_MAX_ELECTRICAL_STEP", "SAMPLES_PER_TIME_CONSTANT", "SCALE_SHARPNESS",
+           "PEAK_WINDOW_SHARPNESS", "PLAN_MAX_ELECTRICAL_STEP", "SAMPLES_PER_TIME_CONSTANT",
+           "SATURATED_INDUCTANCE_FRACTION", "SATURATION_LEVELS", "SATURATION_TOP_FRACTION", "SCALE_SHARPNESS",
            "SETTLE_SPIN_TIMES", "SOFTMAX_SHARPNESS", "SPEED_FRACTION", "SPIN_TIME_CONSTANTS", "STEP_CURRENT_FRACTION",
            "SegmentPrediction", "VOLTAGE_FRACTION", "assess_design", "auto_design", "auto_plan", "friction_samples",
            "infer_waveforms", "load_plan_waveforms", "mechanical_segments", "optimize_plan", "predict_segments",
-           "predicted_covariance", "speed_limit"]
+           "predicted_covariance", "speed_limit", "with_saturation_steps"]

@@ -2,7 +2,11 @@
 
 Everything here runs on the nominal motor (the datasheet values), with the
 same forward model and Jacobian the fit uses, so what ``design`` predicts is
-what ``fit`` will report when the motor is close to nominal.
+what ``fit`` will report when the motor is close to nominal. A motor with a saturating
+magnetic law (any of sat_d, sat_q, sat_dq non-zero) is predicted with it: the forward model then
+integrates the flux linkages (``model._flux``), so the peak currents are the saturating machine's.
+Where a plan's only weakness is the per-unit saturation coefficients' coupling to their axis's
+inductance, it is judged again in the law's own coefficients (``_saturation_plan.law_verdict``).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from ..model import Experiment, model_experiment, simulate_states
 from ..identify import Identifiability, assess_identifiability
 from ..physics import ESTIMATED, MotorParams
 from ..plan import Plan
+from ._saturation_plan import law_verdict, motor_note
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,6 +59,9 @@ class DesignReport:
         segments: per-segment predictions.
         problems: feasibility problems, one sentence each (empty when feasible).
         identifiability: rank, condition number, dead/weak parameters, predicted CIs.
+        notes: how the prediction was made and what the plan was sized for, one sentence each
+            (the saturating law used; the margin for unknown saturation; a judgement in the
+            law's own coefficients).
     """
 
     plan: Plan
@@ -61,6 +69,7 @@ class DesignReport:
     segments: tuple[SegmentPrediction, ...]
     problems: tuple[str, ...]
     identifiability: Identifiability
+    notes: tuple[str, ...] = ()
 
     @property
     def feasible(self) -> bool:
@@ -81,13 +90,15 @@ class DesignReport:
             "identifiability": ident.to_dict(),
             "predicted": {
                 n: {"se": _num(ident.predicted_se[i]), "ci95_half_width": _num(ident.predicted_ci95[i]),
-                    "relative_ci95": _num(ident.predicted_ci95[i] / float(getattr(self.motor, n)))}
+                    "relative_ci95": _num(ident.predicted_ci95[i] / float(getattr(self.motor, n)))
+                    if float(getattr(self.motor, n)) != 0.0 else None}
                 for i, n in enumerate(ident.names)
             },
             "noise_sigma": ident.noise_sigma,
             "current_limit": self.plan.current_limit,
             "voltage_limit": self.plan.voltage_limit,
             "max_speed": self.plan.max_speed,
+            "notes": list(self.notes),
         }
 
 
@@ -144,7 +155,8 @@ def _problems(plan: Plan, motor: MotorParams, segments: tuple[SegmentPrediction,
                             f"t = {s.peak_current_time:.4g} s exceeds the current limit {plan.current_limit:.3g} A; "
                             "lower the voltage or shorten the segment.")
         if not s.locked:
-            no_load = plan.voltage_limit / (float(motor.pole_pairs) * float(motor.lambda_m))
+            flux = float(motor.pole_pairs) * float(motor.lambda_m)
+            no_load = plan.voltage_limit / flux if flux > 0 else math.inf  # no magnet: no back-EMF limit
             if plan.max_speed is not None and s.peak_speed > plan.max_speed:
                 problems.append(f"{where}: the free spin-up runs away to {s.peak_speed:.4g} rad/s, above max_speed "
                                 f"{plan.max_speed:.4g} rad/s; shorten the segment or lower v_q.")
@@ -184,5 +196,7 @@ def assess_design(
     segments = predict_segments(plan, motor)
     experiment = Experiment.from_plan(plan, delay_samples=delay_samples)
     ident = assess_identifiability(experiment, motor, noise_sigma=noise_sigma, names=names)
+    ident, law = law_verdict(ident, experiment, motor, tuple(names))
+    notes = tuple(n for n in (motor_note(motor), law) if n)
     return DesignReport(plan=plan, motor=motor, segments=segments, problems=_problems(plan, motor, segments),
-                        identifiability=ident)
+                        identifiability=ident, notes=notes)
