@@ -33,7 +33,7 @@ import numpy as np
 from .._stats import chi2_sf
 from ..model import Experiment, model_experiment, predicted_currents, saturation_columns, with_experiment_delay
 from ..identify import sensitivity_jacobian
-from ..physics import EXPONENT_CANDIDATES, MAGNETIC, MotorParams
+from ..physics import EXPONENT_CANDIDATES, MAGNETIC, MotorParams, is_saturating
 
 #: Family-wise false-alarm rate of the effect tests of one fit.
 ALPHA = 1e-3
@@ -98,6 +98,8 @@ class Score:
 def score_test(residual: np.ndarray, signature: np.ndarray, fitted: np.ndarray, sigma_hat: float) -> Score:
     """Score test of ``signature`` (m, k) columns against ``residual`` (m,) after a fit with columns ``fitted``."""
     e = _orthogonal_part(signature, fitted)
+    if not np.all(np.isfinite(e)):  # a signature the model could not compute: no test
+        return Score(float("nan"), 0, 0.0, np.full(signature.shape[1], np.nan), np.full(signature.shape[1], np.nan))
     u, s, vt = np.linalg.svd(e, full_matrices=False)
     keep = s > 1e-10 * max(float(s.max(initial=0.0)), 1e-300)
     k = signature.shape[1]
@@ -197,6 +199,13 @@ def unmodelled_effects(
     if plain:
         fitted, columns = effect_signatures(motor, fit_names, base, plain)
         scores = {e: (score_test(residual, columns[e], fitted, sigma_hat), motor, 1) for e in plain}
+    if magnetic and not is_saturating(motor):
+        # The law's coefficients are per unit of i_ref: at the data's peak current (as the selection sets
+        # it) the candidates' signatures are of order one; at an arbitrary i_ref a step of 1e-4 in a
+        # coefficient could bend the law past monotone at the data's currents.
+        peak = float(np.max(np.abs(np.asarray(currents, dtype=float)), initial=0.0))
+        if np.isfinite(peak) and peak > 0.0:
+            motor = motor.replace(i_ref=float(f"{peak:.2g}"))
     scores.update(_magnetic_scores(motor, fit_names, base, magnetic, residual, sigma_hat))
     threshold = ALPHA / len(effects)
     delay = float(motor.delay)
