@@ -65,7 +65,7 @@ def _fit_table(cal: Calibration) -> Table:
               help="Bench effects to model: 'auto' fits those the data support (delay, dead_time, offsets; "
                    "one at a time, largest evidence first, each kept only if a likelihood-ratio test supports "
                    "it), 'none' fits none, or a comma-separated list fits those.")
-@click.option("--magnetics", "magnetics", type=click.Choice(["auto", "linear", "saturating"]), default="auto",
+@click.option("--magnetics", "magnetics", type=click.Choice(["auto", "linear", "saturating"]), default="linear",
               show_default=True,
               help="Magnetic model: 'auto' fits the saturation terms (d, q, cross) the data support, each with "
                    "the exponents that fit best; 'linear' constant Ld, Lq; 'saturating' every term the plan "

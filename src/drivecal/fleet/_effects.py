@@ -24,7 +24,7 @@ def select_for(columns: dict[str, Any], i: int, bench: BenchData, path: str, mot
     """
     experiment = bench.experiment(measured_speed, delay_samples=motor_file.delay_samples)
     sel = select_effects(experiment, bench.currents, motor_file.motor, names=motor_file.names, effects=effects,
-                         source=path)
+                         source=path, magnetics="linear")
     cal = sel.calibration
     if not sel.included or not bool(cal.converged):
         return

@@ -40,7 +40,8 @@ from ..errors import DrivecalError
 from ..fitting import FitOptions, fit_currents
 from ..identify import assess_identifiability
 from ..model import Experiment
-from ..physics import ESTIMABLE, EXPONENT_CANDIDATES, EXPONENTS, MotorParams, is_saturating
+from ..physics import (ESTIMABLE, EXPONENT_CANDIDATES, EXPONENTS, MAGNETIC, MotorParams, flux_of_currents,
+                       is_saturating)
 from ..results import Calibration
 
 #: Values of ``--effects`` besides a list of effect names.
@@ -49,6 +50,12 @@ MODES: tuple[str, ...] = ("auto", "none")
 MAGNETICS: tuple[str, ...] = ("auto", "linear", "saturating")
 #: Every candidate of the selection: the bench effects, then the terms of the saturating law.
 _EFFECTS = {**EFFECTS, **MAGNETIC_EFFECTS}
+
+#: A saturation term is kept only where, fitted, it changes the flux at the tested currents by at least this
+#: fraction of the linear machine's flux swing there (2 %). Below it the term may be statistically clear (a
+#: switching inverter's duty-dependent ripple at 20 mA noise shows as 0.7 % "saturation" of a linear motor)
+#: but it is not the iron: the linear model's Ld, Lq are then the tested range's average, within that.
+MATERIAL_SATURATION = 0.02
 
 #: A one-step delay estimate further than this (samples) from the fitted one is not a start: use the nominal.
 _DELAY_START_SPAN = 10.0
@@ -79,7 +86,8 @@ class EffectChoice:
         included: the final fit estimates it.
         how: ``"selected"`` (by the tests), ``"requested"`` (named by the user),
             ``"not supported"`` (its tests fell short), ``"not identifiable"``
-            (the plan cannot show it), ``"fixed"`` (the delay given with
+            (the plan cannot show it), ``"too small"`` (a saturation term below
+            ``MATERIAL_SATURATION``), ``"fixed"`` (the delay given with
             ``--delay``) or ``"not tested"`` (``--effects none``).
         test: the evidence: ``"likelihood ratio"``, ``"score"`` or ``""``.
         statistic: the test's statistic (-), NaN when untested.
@@ -201,7 +209,7 @@ def select_effects(
     options: FitOptions = FitOptions(),
     source: str = "bench",
     fixed_delay: bool = False,
-    magnetics: str = "linear",
+    magnetics: str = "auto",
 ) -> EffectSelection:
     """Fit ``names`` with the bench effects and the magnetic law the data support (see the module docstring).
 
@@ -357,6 +365,13 @@ def _add_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParam
         p = float(min(1.0, choices * chi2_sf(statistic, added))) if math.isfinite(statistic) else math.nan
         threshold = best["p_threshold"]
         forced_in = force and effect in MAGNETIC_EFFECTS and bool(refit.converged)
+        size = saturation_size(refit.motor, _EFFECTS[effect][1][0], currents) if effect in MAGNETIC_EFFECTS else 1.0
+        if math.isfinite(p) and p < threshold and size < MATERIAL_SATURATION and not forced_in:
+            decided[effect] = EffectChoice(effect, False, "too small", "likelihood ratio", statistic, added, p,
+                                           threshold, _fitted_estimate(refit, _EFFECTS[effect][0]),
+                                           f"{_EFFECTS[effect][2]}: {100 * size:.2g} % of the flux at the tested "
+                                           f"currents, below the {100 * MATERIAL_SATURATION:g} % that is modelled")
+            continue
         if (math.isfinite(p) and p < threshold) or forced_in:
             how = "selected" if math.isfinite(p) and p < threshold else "requested"
             decided[effect] = EffectChoice(effect, True, how, "likelihood ratio", statistic, added, p,
@@ -371,12 +386,74 @@ def _add_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParam
     if added_terms and bool(cal.converged):
         cal, more = _refine_exponents(experiment, currents, prior, cal, added_terms, options, source)
         fits += more
+        cal, more, dropped = _drop_effects(experiment, currents, prior, cal, decided, options, source)
+        fits += more
+        candidates += dropped
     if candidates and bool(cal.converged):
         # The final word on what was not added: the score tests against the final fit.
         for t in unmodelled_effects(cal.motor, cal.fit_names, experiment, currents, float(cal.sigma_hat),
                                     effects=tuple(candidates)):
             last[t["effect"]] = t
     return cal, fits, decided, last
+
+
+def _drop_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParams, cal: Calibration,
+                  decided: dict, options: FitOptions, source: str) -> tuple[Calibration, int, list[str]]:
+    """The backward step once the saturating law is in: bench effects it explains are dropped.
+
+    A bench effect added while the law was incomplete (before its exponents were chosen again) may
+    have stood in for the iron. Each selected bench effect is refitted out; the one whose
+    likelihood ratio is least significant is dropped if it is no longer significant at the level it
+    was added at, and the step repeats. Returns ``(calibration, refits, dropped effects)``.
+    """
+    fits, dropped = 0, []
+    while True:
+        trials = []
+        for e, c in decided.items():
+            if not (c.included and c.how == "selected" and e in EFFECTS):
+                continue
+            params = EFFECTS[e][0]
+            start = cal.motor.replace(**{n: getattr(prior, n) for n in params})
+            centre = prior.replace(**{n: getattr(cal.motor, n) for n in EXPONENTS + ("i_ref",)})
+            reduced = fit_currents(experiment, currents, centre, names=tuple(n for n in cal.names if n not in params),
+                                   initial=start, options=options, source=source)
+            fits += 1
+            removed = len(cal.fit_names) - len(reduced.fit_names)
+            if bool(reduced.converged) and removed > 0:
+                statistic = max(0.0, _lr(reduced, cal))
+                trials.append((float(min(1.0, chi2_sf(statistic, removed))), e, statistic, removed, reduced))
+        if not trials:
+            return cal, fits, dropped
+        p, e, statistic, removed, reduced = max(trials, key=lambda t: t[0])
+        if not p >= decided[e].p_threshold:
+            return cal, fits, dropped
+        decided[e] = EffectChoice(e, False, "not supported", "likelihood ratio", statistic, removed, p,
+                                  decided[e].p_threshold, _fitted_estimate(cal, EFFECTS[e][0]),
+                                  f"{_EFFECTS[e][2]}: dropped, the saturating law explains what it stood in for")
+        cal = reduced
+        dropped.append(e)
+
+
+def saturation_size(motor: MotorParams, term: str, currents: np.ndarray) -> float:
+    """How much saturation term ``term`` (``sat_d``, ``sat_q``, ``sat_dq``) alone changes the flux (fraction).
+
+    The largest change of ``psi_d`` or ``psi_q`` over the measured currents (A, shape (M, 2); up to
+    2000 of them), each divided by that axis's linear flux swing at the largest tested current
+    (``Ld * max|i_d|``, ``Lq * max|i_q|``, each at least a tenth of the other axis's current).
+    """
+    c = np.asarray(currents, dtype=float).reshape(-1, 2)
+    c = c[np.all(np.isfinite(c), axis=1)][:: max(1, len(c) // 2000)]
+    if c.size == 0:
+        return 0.0
+    only = motor.replace(**{n: (getattr(motor, n) if n == term else 0.0) for n in MAGNETIC})
+    psi_d, psi_q = (np.asarray(f) for f in flux_of_currents(c[:, 0], c[:, 1], only))
+    peak = np.max(np.abs(c), axis=0)
+    peak = np.maximum(peak, 0.1 * peak.max())
+    if peak.max() <= 0.0:
+        return 0.0
+    change_d = np.max(np.abs(psi_d - float(motor.lambda_m) - float(motor.Ld) * c[:, 0])) / (float(motor.Ld) * peak[0])
+    change_q = np.max(np.abs(psi_q - float(motor.Lq) * c[:, 1])) / (float(motor.Lq) * peak[1])
+    return float(max(change_d, change_q))
 
 
 def _refine_exponents(experiment: Experiment, currents: np.ndarray, prior: MotorParams, cal: Calibration,
@@ -416,4 +493,6 @@ def _note(effect: str, included: bool, how: str, ident: Any = None) -> str:
                                                                                           if reasons else "")
     if how == "not tested":
         return f"{what}: not tested (--effects none)" if not included else what
+    if how == "too small":
+        return f"{what}: below the {100 * MATERIAL_SATURATION:g} % of the flux that is modelled"
     return f"{what}: not supported by the data"
