@@ -90,9 +90,9 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
     LOG` proposes one).
     The motor file's values are the starting point and the prior; a parameter
     the recording cannot identify is held there and reported as such. Bench
-    effects (the inverter's delay, its dead time, sensor offsets) and the
-    magnetic saturation are found from the data by default (--effects auto,
-    --magnetics auto) and reported with the evidence;
+    effects (the inverter's delay, its dead time, sensor offsets) are found
+    from the data by default (--effects auto), the magnetic saturation with
+    --magnetics auto, and reported with the evidence;
     any parameter named in --estimate or the motor file's 'estimate' (also
     alpha_R, offset_a, offset_b) is fitted whatever the tests say.
 
