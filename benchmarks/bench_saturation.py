@@ -29,17 +29,10 @@ import drivecal as dc  # first: it quiets XLA's C++ log lines before JAX loads
 
 import numpy as np
 
-from drivecal.bench import engine_bench
-from drivecal.physics import from_hinkkanen
+from drivecal.bench import SATURATION_LEVELS_PLAN as PLAN
+from drivecal.bench import engine_bench, hinkkanen_syrm
 
 RESULTS = Path(__file__).parent / "results" / "bench_saturation.json"
-SYRM = dict(a_d0=17.4, a_dd=373.0, S=5, a_q0=52.1, a_qq=658.0, T=1, a_dq=1120.0, U=1, V=0)
-S = dc.Segment
-PLAN = dc.Plan((S("d 15 V", 0.01, True, v_d=15.0), S("d 30 V", 0.01, True, v_d=30.0),
-                S("d 45 V", 0.01, True, v_d=45.0), S("q 10 V", 0.01, True, v_q=10.0),
-                S("q 20 V", 0.01, True, v_q=20.0), S("q 30 V", 0.01, True, v_q=30.0),
-                S("d+q", 0.01, True, v_d=20.0, v_q=20.0), S("d-q", 0.01, True, v_d=30.0, v_q=-30.0)),
-               sample_rate=10000.0, v_dc=540.0, current_limit=80.0)
 LINEAR = ("R", "Ld", "Lq")
 SATURATING = LINEAR + ("sat_d", "sat_q", "sat_dq")
 
@@ -56,7 +49,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
 
-    syrm = from_hinkkanen(dc.MotorParams(R=0.54, pole_pairs=2.0, J=0.015, lambda_m=0.0), i_ref=40.0, **SYRM)
+    syrm = hinkkanen_syrm(i_ref=40.0)
     linear = syrm.replace(sat_d=0.0, sat_q=0.0, sat_dq=0.0)  # the same small-signal motor without saturation
     # The same start for both: the small-signal values 10 % off, no saturation known; the saturating fit
     # starts from the law's exponents with zero coefficients.

@@ -12,23 +12,15 @@ import numpy as np
 import pytest
 
 import drivecal as dc
-from drivecal.bench import engine_bench
-from drivecal.physics import from_hinkkanen
+from drivecal.bench import SATURATION_LEVELS_PLAN, engine_bench, hinkkanen_syrm
 
-SYRM = dict(a_d0=17.4, a_dd=373.0, S=5, a_q0=52.1, a_qq=658.0, T=1, a_dq=1120.0, U=1, V=0)
-S = dc.Segment
-PLAN = dc.Plan((S("d 15 V", 0.01, True, v_d=15.0), S("d 30 V", 0.01, True, v_d=30.0),
-                S("d 45 V", 0.01, True, v_d=45.0), S("q 10 V", 0.01, True, v_q=10.0),
-                S("q 20 V", 0.01, True, v_q=20.0), S("q 30 V", 0.01, True, v_q=30.0),
-                S("d+q", 0.01, True, v_d=20.0, v_q=20.0), S("d-q", 0.01, True, v_d=30.0, v_q=-30.0)),
-               sample_rate=10000.0, v_dc=540.0, current_limit=80.0)
 NAMES = ("R", "Ld", "Lq", "sat_d", "sat_q", "sat_dq")
 
 
 @pytest.mark.slow
 def test_saturating_fit_coverage():
-    truth = from_hinkkanen(dc.MotorParams(R=0.54, pole_pairs=2.0, J=0.015, lambda_m=0.0), i_ref=40.0, **SYRM)
-    clean = engine_bench(PLAN, truth)
+    truth = hinkkanen_syrm(i_ref=40.0)
+    clean = engine_bench(SATURATION_LEVELS_PLAN, truth)
     n = 200
     rng = np.random.default_rng(2026)
     currents = clean.currents[None] + rng.normal(0.0, 0.02, size=(n,) + clean.currents.shape)

@@ -9,24 +9,16 @@ import numpy as np
 import pytest
 
 import drivecal as dc
-from drivecal.bench import engine_bench
+from drivecal.bench import HINKKANEN_SYRM, engine_bench, hinkkanen_syrm
+from drivecal.bench import SATURATION_LEVELS_PLAN as LEVELS
 from drivecal.maps import flux_maps
 from drivecal.physics import from_hinkkanen
 from drivecal.selection import select_effects
 
-#: Hinkkanen et al. 2017's 6.7-kW SyRM (doi 10.1109/TIA.2016.2644624; coefficients as in Aalto's motulator).
-HINKKANEN_SYRM = dict(a_d0=17.4, a_dd=373.0, S=5, a_q0=52.1, a_qq=658.0, T=1, a_dq=1120.0, U=1, V=0)
-S = dc.Segment
-#: Locked steps at three levels per axis and combined d+q steps (to about 10 A on d and 39 A on q).
-LEVELS = dc.Plan((S("d 15 V", 0.01, True, v_d=15.0), S("d 30 V", 0.01, True, v_d=30.0), S("d 45 V", 0.01, True, v_d=45.0),
-                  S("q 10 V", 0.01, True, v_q=10.0), S("q 20 V", 0.01, True, v_q=20.0), S("q 30 V", 0.01, True, v_q=30.0),
-                  S("d+q", 0.01, True, v_d=20.0, v_q=20.0), S("d-q", 0.01, True, v_d=30.0, v_q=-30.0)),
-                 sample_rate=10000.0, v_dc=540.0, current_limit=80.0)
-
 
 @pytest.fixture(scope="module")
 def syrm_selection():
-    truth = from_hinkkanen(dc.MotorParams(R=0.54, pole_pairs=2.0, J=0.015, lambda_m=0.0), i_ref=20.0, **HINKKANEN_SYRM)
+    truth = hinkkanen_syrm(i_ref=20.0)  # Hinkkanen et al. 2017's 6.7-kW SyRM, doi 10.1109/TIA.2016.2644624
     bench = engine_bench(LEVELS, truth).add_noise(0.02, 3)
     prior = dc.MotorParams(R=0.5, Ld=0.05, Lq=0.02, lambda_m=0.0, pole_pairs=2.0, J=0.015)
     sel = select_effects(bench.experiment(), bench.currents, prior, names=("R", "Ld", "Lq"), magnetics="auto")
