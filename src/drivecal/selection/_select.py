@@ -209,7 +209,7 @@ def select_effects(
     options: FitOptions = FitOptions(),
     source: str = "bench",
     fixed_delay: bool = False,
-    magnetics: str = "auto",
+    magnetics: str = "linear",
 ) -> EffectSelection:
     """Fit ``names`` with the bench effects and the magnetic law the data support (see the module docstring).
 
