@@ -170,12 +170,15 @@ def _with_band(f, cal: Any, *args) -> tuple[np.ndarray, np.ndarray]:
     theta = jnp.asarray([float(cal.estimate[cal.names.index(n)]) for n in names])
 
     def g(t):
-        return f(cal.motor.with_vector(names, t), *args)
+        out = f(cal.motor.with_vector(names, t), *args)
+        return out, out
 
-    value = np.asarray(g(theta))
     if not names:
+        value = np.asarray(g(theta)[0])
         return value, np.zeros_like(value)
-    jac = np.asarray(jax.jacfwd(g)(theta)).reshape(value.size, len(names))
+    jac, value = jax.jacfwd(g, has_aux=True)(theta)  # the value and its gradient in one pass
+    value = np.asarray(value)
+    jac = np.asarray(jac).reshape(value.size, len(names))
     cov = np.asarray(cal.covariance, dtype=float)
     with np.errstate(invalid="ignore"):
         var = np.einsum("ij,jk,ik->i", jac, cov, jac)
