@@ -151,3 +151,46 @@ def read_toml(path: str | Path) -> dict:
         raise DrivecalError(f"{path}: no such file; check the path.") from None
     except tomllib.TOMLDecodeError as exc:
         raise DrivecalError(f"{path}: not valid TOML ({exc}); fix the syntax.") from None
+
+
+#: Display units (what a person reads: mΩ, mH, mWb) of the SI units in tables; the JSON stays SI.
+_DISPLAY = {"ohm": "Ω", "H": "H", "Wb": "Wb", "V": "V", "A": "A", "s": "s", "Hz": "Hz", "N*m": "N·m"}
+#: Units shown as written, without a prefix (a prefix on kg·m² or rad/s would mislead).
+_PLAIN = {"N*m*s": "N·m·s", "kg*m^2": "kg·m²", "-": ""}
+_DISPLAY_PREFIXES = ((1e9, "G"), (1e6, "M"), (1e3, "k"), (1.0, ""), (1e-3, "m"), (1e-6, "µ"), (1e-9, "n"))
+
+
+def format_quantity(value: float, unit: str, se: float | None = None) -> str:
+    """``value`` (SI ``unit``) for a person: an SI prefix that puts it in [1, 1000), digits matching ``se``.
+
+    With a standard error, the value keeps the digits down to the SE's second
+    significant digit and is followed by ``± se`` in the same prefix, e.g.
+    ``format_quantity(0.0032003, "H", 5.7e-7)`` is ``"3.20030 ± 0.00057 mH"``;
+    without one, four significant digits (``"3.2 mH"``). Units without a
+    prefix form (``-``, ``samples``, ``1/K``, ``degC``, ``rad``) are printed as given.
+
+    Args:
+        value: the quantity in SI units.
+        unit: its SI unit as in :data:`drivecal.physics.UNITS`.
+        se: its standard error (same unit), or None.
+    """
+    value = float(value)
+    if not math.isfinite(value):
+        return f"{value} {unit}".strip()
+    shown = _DISPLAY.get(unit)
+    scale, prefix = 1.0, ""
+    if shown is not None:
+        ref = abs(value) if value != 0.0 else abs(se or 0.0)
+        for scale, prefix in _DISPLAY_PREFIXES:
+            if ref >= scale * 0.9995:
+                break
+        if ref == 0.0:
+            scale, prefix = 1.0, ""
+    else:
+        shown = _PLAIN.get(unit, unit)
+    suffix = f" {prefix}{shown}" if shown or prefix else ""
+    if se is None or not math.isfinite(float(se)) or float(se) <= 0.0:
+        return f"{value / scale:.4g}{suffix}"
+    s = float(se) / scale
+    decimals = max(0, 1 - math.floor(math.log10(s)))
+    return f"{value / scale:.{decimals}f} ± {s:.{decimals}f}{suffix}"

@@ -22,7 +22,7 @@ import jax
 import numpy as np
 
 from .._stats import t_ppf
-from ..data import BenchData
+from ..data import BenchData, MotorFile
 from ..errors import DrivecalError
 from ..identify import Identifiability, assess_identifiability
 from ..model import Experiment, model_experiment, with_experiment_delay
@@ -157,10 +157,10 @@ def fit_currents(
 
 def fit(
     bench: BenchData,
-    prior: MotorParams,
+    prior: MotorParams | MotorFile,
     *,
     initial: MotorParams | np.ndarray | None = None,
-    names: tuple[str, ...] = ESTIMATED,
+    names: tuple[str, ...] | None = None,
     options: FitOptions = FitOptions(),
     measured_speed: bool = True,
     delay_samples: float | None = None,
@@ -173,9 +173,11 @@ def fit(
 
     Args:
         bench: the recorded run.
-        prior: nominal motor (datasheet values) and fixed parameters.
+        prior: nominal motor (datasheet values) and fixed parameters: a ``MotorParams``, or a
+            loaded motor file (``drivecal.load_motor``), whose ``estimate`` list and
+            ``delay_samples`` then apply unless ``names`` / ``delay_samples`` are given.
         initial: starting point (default: ``options.start``, an estimate from the data).
-        names: parameters to estimate.
+        names: parameters to estimate (default: the motor file's ``estimate``, else R, Ld, Lq, lambda_m).
         options: solver settings.
         measured_speed: where free segments carry a measured ``w_m``, use it as
             an input so J and B play no part (see ``BenchData.experiment``).
@@ -185,6 +187,12 @@ def fit(
             (a second measured output, weighed by the sensors' noise estimated from the data)
             or "ignore" (see ``BenchData.experiment``).
     """
+    if isinstance(prior, MotorFile):
+        names = names if names is not None else prior.estimate
+        if delay_samples is None:
+            delay_samples = prior.delay_samples
+        prior = prior.motor
+    names = ESTIMATED if names is None else tuple(names)
     if delay_samples is not None:
         prior = prior.replace(delay=float(delay_samples))
     delay_samples = float(prior.delay)

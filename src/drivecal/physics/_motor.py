@@ -232,6 +232,43 @@ class MotorParams(eqx.Module):
         """Plain ``{name: float}`` of every field, bench effects included (unbatched only)."""
         return {f.name: float(getattr(self, f.name)) for f in dataclasses.fields(self)}
 
+    def _shown(self) -> list[tuple[str, Any]]:
+        """The fields worth showing: the seven motor parameters, then any other that differs from the default."""
+        default = {f.name: f.default for f in dataclasses.fields(self)}
+        out = []
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            try:
+                changed = np.shape(v) != () or float(v) != float(default[f.name])
+            except Exception:  # a tracer (printed inside jit): show it
+                changed = True
+            if f.name in ESTIMATED + FIXED or changed:
+                out.append((f.name, v))
+        return out
+
+    def __repr__(self) -> str:
+        """``MotorParams(R=0.45, Ld=0.0032, ...)``: plain numbers (shapes for a batch), SI units."""
+        def text(v):
+            try:
+                return f"{float(v)!r}" if np.shape(v) == () else f"<array {np.shape(v)}>"
+            except Exception:  # a tracer
+                return type(v).__name__
+        return "MotorParams(" + ", ".join(f"{n}={text(v)}" for n, v in self._shown()) + ")"
+
+    def __str__(self) -> str:
+        """One line per parameter with its unit, e.g. ``R = 450 mΩ``, ``Ld = 3.2 mH`` (a batch: its shape)."""
+        from .._units import format_quantity
+
+        shape = np.shape(self.R)
+        if shape != ():
+            return f"MotorParams batch of shape {shape}"
+        try:
+            values = [(n, float(v)) for n, v in self._shown()]
+        except Exception:  # a tracer (printed inside jit)
+            return repr(self)
+        return "MotorParams:\n" + "\n".join(f"    {n:<10} = {format_quantity(v, UNITS[n])}"
+                                             for n, v in values)
+
 
 class DqCoefficients(NamedTuple):
     """The dq equations' parameter groups, each computed once from a motor (SI units).

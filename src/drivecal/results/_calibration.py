@@ -322,6 +322,17 @@ class Calibration:
                  for i in range(len(self.fit_names)) for j in range(i + 1, len(self.fit_names))]
         return sorted([p for p in pairs if abs(p[2]) > threshold], key=lambda p: -abs(p[2]))
 
+    def __repr__(self) -> str:
+        """``Calibration(R = 450.027 ± 0.043 mΩ, ..., converged, source)``: the estimates in engineering units."""
+        if self.batch_shape:
+            return f"Calibration(batch of {len(self)} fits, {int(np.sum(self.converged))} converged)"
+        from .._units import format_quantity
+
+        parts = [f"{n} = {format_quantity(float(self.estimate[i]), UNITS[n], float(self.se[i]))}"
+                 if self.identifiable[i] else f"{n} = {format_quantity(float(self.estimate[i]), UNITS[n])} (prior)"
+                 for i, n in enumerate(self.names)]
+        return f"Calibration({', '.join(parts)}; {self.message}; {self.source})"
+
     def __str__(self) -> str:
         """An lmfit-style report: fit statistics, parameters, correlations, warnings."""
         if self.batch_shape:
