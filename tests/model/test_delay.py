@@ -7,7 +7,7 @@ these tests were written (default motor and plan, 20 kHz):
 
 * against the Jaxonomy engine run on a grid k times finer (engine_bench with
   delay 0.5 or 1.5, k = 2): ~1e-9 A -> asserted < 1e-6 A (the engine's own tolerance);
-* against the independent plant's averaged inverter (tests/helpers/pwm_plant.py,
+* against the independent plant's averaged inverter (drivecal.bench.pwm_bench,
   duty loaded at the carrier valley): ~5e-11 A -> asserted < 1e-8 A;
 * the prediction is continuous in d across a whole sample (the two
   sub-intervals meet the one-interval step).
@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 import drivecal as dc
+from drivecal.bench import pwm_bench
 from drivecal.model import model_experiment, predicted_currents
-from helpers.pwm_plant import pwm_bench
 
 PLAN = dc.Plan((
     dc.Segment("locked d-step", 0.004, locked=True, v_d=8.0),

@@ -10,18 +10,19 @@ files") and exemplified in ``examples/``. Motor files are read in
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
 import numpy as np
-from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError
+from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError, field_validator
 
 from . import _waveforms as waveforms
 from ..errors import DrivecalError
 from .._units import StrictModel, explain, quantity, read_toml
-from ._plan import Plan, Segment
+from ._plan import Inverter, Plan, Segment
 
 Seconds, Hertz, Volts, Amperes = quantity("time"), quantity("frequency"), quantity("voltage"), quantity("current")
 
@@ -120,12 +121,30 @@ class SegmentSpec(StrictModel):
     inverter: Literal["on", "off"] = "on"
 
 
+class InverterSpec(StrictModel):
+    """The ``[inverter]`` table: what ``drivecal simulate`` runs the plan on (:class:`Inverter`)."""
+
+    model: Literal["averaged", "switching"] = "averaged"
+    modulation: Literal["svpwm", "sine"] = "svpwm"
+    dead_time: Seconds = 0.0
+    device_drop: Volts = 0.0
+
+
 class PlanSpec(StrictModel):
     sample_rate: Hertz = 20_000.0
     v_dc: Volts = 48.0
     current_limit: Amperes = 30.0
     max_speed: quantity("speed") | None = None
+    inverter: InverterSpec = InverterSpec()
     segment: list[SegmentSpec]
+
+    @field_validator("inverter", mode="before")
+    @classmethod
+    def _a_table(cls, value: Any) -> Any:
+        if not isinstance(value, (dict, InverterSpec)):
+            raise ValueError("write the inverter as an [inverter] table with model = \"averaged\" or "
+                             "\"switching\", modulation, dead_time and device_drop")
+        return value
 
 
 #: The most samples a plan may hold (all segments): 500 s at 20 kHz. More is a typo in a duration or a
@@ -144,6 +163,7 @@ def _check_spec(spec: PlanSpec, source: str) -> list[int]:
         if value is not None and not value > 0:
             raise DrivecalError(f"{source}: '{key}' must be positive, got {value:g} {unit}; write e.g. "
                                 f"{key} = \"{example}\".")
+    _check_inverter(spec, source)
     if not spec.segment:
         raise DrivecalError(f"{source}: 'segment': the plan has no segments; add at least one [[segment]] table.")
     seen: dict[str, int] = {}
@@ -176,6 +196,18 @@ def _check_spec(spec: PlanSpec, source: str) -> list[int]:
         for axis in ("v_d", "v_q"):
             _check_waveform(getattr(s, axis), f"{where}.{axis}")
     return counts
+
+
+def _check_inverter(spec: PlanSpec, source: str) -> None:
+    inv, where = spec.inverter, f"{source}: 'inverter"
+    half_period = 0.5 / spec.sample_rate
+    if not 0.0 <= inv.dead_time < half_period:
+        raise DrivecalError(f"{where}.dead_time' must be >= 0 and shorter than half the carrier period "
+                            f"({half_period:g} s at {spec.sample_rate:g} Hz), got {inv.dead_time:g} s; write e.g. "
+                            "dead_time = \"1 us\" (0 for none).")
+    if not 0.0 <= inv.device_drop < 0.5 * spec.v_dc:
+        raise DrivecalError(f"{where}.device_drop' must be >= 0 and below half the DC link ({0.5 * spec.v_dc:g} V), "
+                            f"got {inv.device_drop:g} V; write e.g. device_drop = \"0.7 V\" (0 for none).")
 
 
 def _check_waveform(spec, where: str) -> None:
@@ -245,7 +277,8 @@ def plan_from_dict(data: dict, source: str = "plan", base: Path | None = None) -
         spec = PlanSpec.model_validate(data)
     except ValidationError as exc:
         keys = ", ".join(PlanSpec.model_fields) + " (per [[segment]]: " + ", ".join(
-            f.alias or n for n, f in SegmentSpec.model_fields.items()) + ")"
+            f.alias or n for n, f in SegmentSpec.model_fields.items()) + "; in [inverter]: " + ", ".join(
+            InverterSpec.model_fields) + ")"
         raise explain(exc, source, "plan", keys) from None
     counts = _check_spec(spec, source)
     base = base or Path(".")
@@ -256,7 +289,7 @@ def plan_from_dict(data: dict, source: str = "plan", base: Path | None = None) -
         segments.append(Segment(s.name, s.duration, s.locked, v_d=v_d, v_q=v_q, temperature=s.temperature,
                                 continues=s.continues, inverter=s.inverter))
     plan = Plan(tuple(segments), sample_rate=spec.sample_rate, v_dc=spec.v_dc, current_limit=spec.current_limit,
-                max_speed=spec.max_speed)
+                max_speed=spec.max_speed, inverter=Inverter(**spec.inverter.model_dump()))
     try:
         return plan.check_feasible()
     except DrivecalError as exc:
@@ -304,6 +337,12 @@ def plan_toml(plan: Plan, waveforms_spec: dict[tuple[str, str], dict] | None = N
     ]
     if plan.max_speed is not None:
         lines.append(f"max_speed = {_toml_value(float(plan.max_speed))}    # rad/s")
+    inv = plan.inverter
+    if not inv.is_default:  # the averaged, ideal inverter is no table
+        lines += ["", "[inverter]    # what `drivecal simulate` runs the plan on",
+                  f"model = {_toml_value(inv.model)}", f"modulation = {_toml_value(inv.modulation)}",
+                  f"dead_time = {_toml_value(float(inv.dead_time))}    # s, per switching edge",
+                  f"device_drop = {_toml_value(float(inv.device_drop))}    # V"]
     for seg in plan.segments:
         lines += ["", "[[segment]]", f"name = {_toml_value(seg.name)}",
                   f"duration = {_toml_value(float(seg.duration))}    # s", f"locked = {_toml_value(bool(seg.locked))}"]
@@ -341,7 +380,8 @@ def write_plan(path: str | Path, plan: Plan, waveforms_spec: dict[tuple[str, str
 
 
 def plan_to_dict(plan: Plan) -> dict[str, Any]:
-    """A plan as JSON: sample rate (Hz), V_dc (V), current limit (A), segments."""
+    """A plan as JSON: sample rate (Hz), V_dc (V), current limit (A), segments; the inverter when it is not the
+    averaged, ideal one (dead time in s, device drop in V)."""
     segments = []
     for seg in plan.segments:
         entry = {"name": seg.name, "duration": seg.duration, "locked": seg.locked}
@@ -355,9 +395,12 @@ def plan_to_dict(plan: Plan) -> dict[str, Any]:
             value = getattr(seg, axis)
             entry[axis] = float(value) if not hasattr(value, "__len__") else [float(v) for v in value]
         segments.append(entry)
-    return {
+    out = {
         "sample_rate": plan.sample_rate,
         "v_dc": plan.v_dc,
         "current_limit": plan.current_limit,
         "segments": segments,
     }
+    if not plan.inverter.is_default:
+        out["inverter"] = dataclasses.asdict(plan.inverter)
+    return out

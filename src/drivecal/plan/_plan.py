@@ -81,6 +81,57 @@ class Segment:
         return np.stack(columns, axis=1)
 
 
+#: The inverter models of ``drivecal simulate`` and the modulations of the switching one.
+INVERTER_MODELS = ("averaged", "switching")
+INVERTER_MODULATIONS = ("svpwm", "sine")
+
+
+@dataclasses.dataclass(frozen=True)
+class Inverter:
+    """The bench's inverter as ``drivecal simulate`` runs it (a plan file's ``[inverter]`` table).
+
+    The computation delay is the motor file's ``delay_samples``; the fit and the
+    design do not read this table.
+
+    Attributes:
+        model: ``"averaged"`` (the commanded dq voltage held over each sample
+            period, on the Jaxonomy engine; dead time as the motor's ``v_dead``) or
+            ``"switching"`` (center-aligned carrier-comparison PWM with dead time
+            per edge, device drops and sampling at the carrier peak:
+            ``drivecal.bench.pwm_bench``).
+        modulation: ``"svpwm"`` (min-max zero-sequence injection) or ``"sine"``
+            (sine-triangle); used by the switching model.
+        dead_time: dead time per switching edge (s), >= 0; switching model only.
+        device_drop: forward drop of a conducting switch or diode (V), >= 0;
+            switching model only.
+    """
+
+    model: str = "averaged"
+    modulation: str = "svpwm"
+    dead_time: float = 0.0
+    device_drop: float = 0.0
+
+    @property
+    def is_default(self) -> bool:
+        """The averaged, ideal inverter: plan files leave the table out."""
+        return self == Inverter()
+
+    def check(self) -> Inverter:
+        """Raise :class:`PlanError` naming the first bad field and the fix; return self otherwise."""
+        if self.model not in INVERTER_MODELS:
+            raise PlanError(f"inverter model must be \"averaged\" or \"switching\", got {self.model!r}; "
+                            "choose one of them.")
+        if self.modulation not in INVERTER_MODULATIONS:
+            raise PlanError(f"inverter modulation must be \"svpwm\" or \"sine\", got {self.modulation!r}; "
+                            "choose one of them.")
+        for key, value, unit, example in (("dead_time", self.dead_time, "s", "1 us"),
+                                          ("device_drop", self.device_drop, "V", "0.7 V")):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise PlanError(f"inverter {key} must be a number of {unit} >= 0, got {value!r}; write e.g. "
+                                f"{key} = \"{example}\" (0 for none).")
+        return self
+
+
 @dataclasses.dataclass(frozen=True)
 class Plan:
     """A bench experiment: segments run in order at one sample rate.
@@ -92,6 +143,8 @@ class Plan:
         current_limit: the bench's peak phase-current limit (A).
         max_speed: highest mechanical speed the bench allows on free segments
             (rad/s), or None for no stated limit.
+        inverter: the inverter ``drivecal simulate`` runs the plan on
+            (:class:`Inverter`; by default the averaged, ideal one).
     """
 
     segments: tuple[Segment, ...]
@@ -99,6 +152,7 @@ class Plan:
     v_dc: float = 48.0
     current_limit: float = 30.0
     max_speed: float | None = None
+    inverter: Inverter = Inverter()
 
     @property
     def sample_period(self) -> float:
@@ -121,8 +175,9 @@ class Plan:
         Checks: positive sample rate and V_dc, at least one segment, unique names,
         at least two samples per segment, finite voltages, every commanded
         ``|v_dq|`` inside the voltage circle ``v_dc / sqrt(3)``, a first segment
-        that does not continue another, and inverter-off segments that continue
-        a segment of the same rotor condition, with no voltage commanded.
+        that does not continue another, inverter-off segments that continue
+        a segment of the same rotor condition, with no voltage commanded, and
+        the :class:`Inverter`'s fields.
         """
         if not (self.sample_rate > 0 and math.isfinite(self.sample_rate)):
             raise PlanError(f"sample_rate must be a positive number of Hz, got {self.sample_rate!r}.")
@@ -130,6 +185,7 @@ class Plan:
             raise PlanError(f"v_dc must be a positive number of volts, got {self.v_dc!r}.")
         if not self.segments:
             raise PlanError("the plan has no segments; add at least one.")
+        self.inverter.check()
         names = [s.name for s in self.segments]
         if len(set(names)) != len(names):
             raise PlanError(f"segment names must be unique, got {names}.")

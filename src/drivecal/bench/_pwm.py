@@ -1,12 +1,13 @@
 """An independent switching-level PMSM bench: carrier-comparison PWM, dead time, device drops, sampling.
 
 A plain-numpy/Python plant for tests and for users without hardware (issue 17,
-item 6). It shares no code with drivecal's forward model or rollout, nor with
-the Jaxonomy engine bench: it integrates the dq equations of DESIGN.md itself
-(fixed-step RK4 on a grid that contains every switching instant), and takes
-from ``drivecal.physics`` only ``MotorParams`` and the one Clarke/Park pair.
-``tests/bench/test_pwm_plant.py`` ties its derivative to
-``drivecal.physics.dq_derivatives`` and its averaged mode to ``engine_bench``.
+item 6): ``drivecal simulate --inverter switching`` runs it. It shares no code
+with drivecal's forward model or rollout, nor with the Jaxonomy engine bench:
+it integrates the dq equations of DESIGN.md itself (fixed-step RK4 on a grid
+that contains every switching instant), and takes from ``drivecal.physics``
+only ``MotorParams`` and the one Clarke/Park pair. ``tests/bench/test_pwm.py``
+ties its derivative to ``drivecal.physics.dq_derivatives`` and its averaged
+mode to ``engine_bench``.
 
 The inverter, per carrier period ``[t_k, t_k + T)``, ``T = 1 / sample_rate``
 (one symmetric triangular carrier period per control sample):
@@ -54,9 +55,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from drivecal.data import BenchData, SegmentData
-from drivecal.physics import MotorParams, abc_to_dq, dq_to_abc
-from drivecal.plan import Plan, Segment
+from ..data import BenchData, SegmentData
+from ..errors import PlanError
+from ..physics import MotorParams, abc_to_dq, dq_to_abc
+from ..plan import Plan, Segment
 
 MODULATIONS = ("svpwm", "sine")
 
@@ -121,7 +123,7 @@ def duty_cycles(v_abc: np.ndarray, v_dc: float, modulation: str = "svpwm") -> np
     if modulation == "svpwm":
         v = v - 0.5 * (v.max(axis=-1, keepdims=True) + v.min(axis=-1, keepdims=True))
     elif modulation != "sine":
-        raise ValueError(f"modulation must be one of {MODULATIONS}, got {modulation!r}")
+        raise PlanError(f"modulation must be one of {', '.join(MODULATIONS)}, got {modulation!r}; choose one of them.")
     return np.clip(0.5 + v / v_dc, 0.0, 1.0)
 
 
@@ -192,14 +194,81 @@ def _rk4(f, x, h):
     return new, volts
 
 
+def check_inverter(sample_rate: float, v_dc: float, *, switching: bool = True, modulation: str = "svpwm",
+                   delay_samples: float = 1, t_dead: float = 0.0, v_f: float = 0.0, substeps: int = 64) -> None:
+    """Refuse inverter settings the plant cannot run, in one sentence naming the setting and the fix.
+
+    Raises:
+        PlanError: an unknown modulation; a delay that is not a multiple of half a
+            sample; a dead time outside ``[0, T/2)`` or a device drop outside
+            ``[0, V_dc/2)``; dead time or drops on the averaged inverter; fewer than
+            one sub-step.
+    """
+    if modulation not in MODULATIONS:
+        raise PlanError(f"modulation must be one of {', '.join(MODULATIONS)}, got {modulation!r}; choose one of them.")
+    d = float(delay_samples)
+    if not (math.isfinite(d) and d >= 0 and 2 * d == int(2 * d)):
+        raise PlanError(f"delay_samples = {delay_samples!r}: the switching plant loads its duty cycles at the "
+                        "carrier peak or valley, so the computation delay must be a multiple of 0.5 samples >= 0; "
+                        "set delay_samples in the motor file to 0, 0.5, 1, 1.5, ...")
+    half_period = 0.5 / sample_rate
+    if not (math.isfinite(t_dead) and 0.0 <= t_dead < half_period):
+        raise PlanError(f"dead_time = {t_dead:g} s: the dead time per switching edge must be >= 0 and shorter than "
+                        f"half the carrier period ({half_period:g} s at {sample_rate:g} Hz); give e.g. "
+                        "dead_time = \"1 us\".")
+    if not (math.isfinite(v_f) and 0.0 <= v_f < 0.5 * v_dc):
+        raise PlanError(f"device_drop = {v_f:g} V: the devices' forward drop must be >= 0 and below half the DC "
+                        f"link ({0.5 * v_dc:g} V); give e.g. device_drop = \"0.7 V\".")
+    if not switching and (t_dead != 0.0 or v_f != 0.0):
+        raise PlanError(f"the averaged inverter has no dead time or device drop (dead_time = {t_dead:g} s, "
+                        f"device_drop = {v_f:g} V); choose the switching inverter, or set both to 0.")
+    if int(substeps) != substeps or substeps < 1:
+        raise PlanError(f"substeps = {substeps!r}: give a whole number of RK4 steps per carrier period >= 1 "
+                        "(16 is accurate to 1e-13 A on the default motor).")
+
+
+#: Motor fields the plant does not model, with what to do instead: (names, why, fix).
+_UNMODELLED = (
+    (("v_dead",), "is an averaged dead-time voltage, but on the switching plant the dead time is physical",
+     "set v_dead = 0 and give the inverter's dead_time instead"),
+    (("offset_d", "offset_q", "offset_a", "offset_b", "encoder_offset"),
+     "is a sensor offset, and the switching plant's sensors are ideal", "set it to 0 or run the averaged inverter"),
+    (("T_coulomb", "sat_d", "sat_q", "sat_dq"),
+     "is a Coulomb friction or saturation term, and the switching plant's motor is linear with viscous friction",
+     "set it to 0 or run the averaged inverter"),
+)
+
+
+def check_motor(plan: Plan, motor: MotorParams) -> None:
+    """Refuse what the plant does not model, naming the motor field or the segment and the fix.
+
+    The plant takes R at each segment's temperature (``alpha_R``, ``T_ref``); it
+    runs every segment from rest with the inverter on; the motor's dead-time
+    voltage, sensor offsets, Coulomb friction and saturation are not part of it.
+
+    Raises:
+        PlanError: a motor field or a segment the plant cannot run.
+    """
+    for names, why, fix in _UNMODELLED:
+        for name in names:
+            value = float(getattr(motor, name))
+            if value != 0.0:
+                raise PlanError(f"the motor sets {name} = {value:g}, which {why}; {fix}.")
+    for seg in plan.segments:
+        if seg.continues or seg.inverter != "on":
+            raise PlanError(f"segment '{seg.name}': the switching plant runs each segment from rest with the "
+                            "inverter on; remove continue and inverter = \"off\", or run the averaged inverter.")
+
+
 def simulate_segment(segment: Segment, motor: MotorParams, sample_rate: float, v_dc: float, *,
-                     switching: bool = True, modulation: str = "svpwm", delay_samples: int = 1,
+                     switching: bool = True, modulation: str = "svpwm", delay_samples: float = 1,
                      t_dead: float = 0.0, v_f: float = 0.0, substeps: int = 64) -> SegmentRun:
     """Run one segment from rest on the switching plant (see the module docstring).
 
     Args:
         segment: the plan segment (duration, locked, per-sample or constant v_d, v_q).
-        motor: the machine; its bench-effect fields (v_dead, offsets, alpha_R) are ignored here.
+        motor: the machine; its bench-effect fields (v_dead, offsets, alpha_R) are ignored here
+            (:func:`pwm_bench` refuses them, and takes R at the segment's temperature).
         sample_rate: control/sampling rate = carrier frequency (Hz).
         v_dc: DC-link voltage (V).
         switching: carrier-comparison PWM (True) or the ideal averaged inverter (False).
@@ -210,10 +279,8 @@ def simulate_segment(segment: Segment, motor: MotorParams, sample_rate: float, v
         substeps: RK4 steps per carrier period on a uniform grid, to which every
             switching instant is added (so no step straddles an edge).
     """
-    if int(2 * delay_samples) != 2 * delay_samples or delay_samples < 0:
-        raise ValueError(f"delay_samples must be a multiple of 0.5 >= 0, got {delay_samples!r}")
-    if not switching and (t_dead != 0.0 or v_f != 0.0):
-        raise ValueError("the averaged inverter (switching=False) has no dead time or device drop")
+    check_inverter(sample_rate, v_dc, switching=switching, modulation=modulation, delay_samples=delay_samples,
+                   t_dead=t_dead, v_f=v_f, substeps=substeps)
     commands = segment.voltages(sample_rate)
     n = commands.shape[0]
     d = int(delay_samples)
@@ -276,7 +343,7 @@ def simulate_segment(segment: Segment, motor: MotorParams, sample_rate: float, v
 
 
 def pwm_bench(plan: Plan, motor: MotorParams, *, switching: bool = True, modulation: str = "svpwm",
-              delay_samples: int = 1, t_dead: float = 0.0, v_f: float = 0.0, substeps: int = 64,
+              delay_samples: float = 1, t_dead: float = 0.0, v_f: float = 0.0, substeps: int = 64,
               noise: float = 0.0, seed: int = 1, record_speed: bool = False) -> BenchData:
     """The plan on the switching plant, as bench data (built as ``drivecal.bench.engine_bench`` builds it).
 
@@ -284,12 +351,25 @@ def pwm_bench(plan: Plan, motor: MotorParams, *, switching: bool = True, modulat
     of each sample and the currents sampled at the carrier peak, plus seeded
     Gaussian sensor noise of ``noise`` (A) when positive (``BenchData.add_noise``).
     Arguments as :func:`simulate_segment`; ``record_speed`` also records ``w_m``
-    (rad/s) and ``theta_e`` (rad).
+    (rad/s) and ``theta_e`` (rad). R follows a segment's ``temperature``
+    (``alpha_R``, ``T_ref``), which is recorded as ``engine_bench`` records it.
+
+    Raises:
+        PlanError: an infeasible plan, inverter settings the plant cannot run
+            (:func:`check_inverter`), or motor fields and segments it does not
+            model (:func:`check_motor`).
     """
     plan.check_feasible()
+    check_inverter(plan.sample_rate, plan.v_dc, switching=switching, modulation=modulation,
+                   delay_samples=delay_samples, t_dead=t_dead, v_f=v_f, substeps=substeps)
+    check_motor(plan, motor)
     segments = []
     for seg in plan.segments:
-        run = simulate_segment(seg, motor, plan.sample_rate, plan.v_dc, switching=switching,
+        warm = motor
+        if seg.temperature is not None:
+            rise = float(seg.temperature) - float(motor.T_ref)
+            warm = motor.replace(R=float(motor.R) * (1.0 + float(motor.alpha_R) * rise))
+        run = simulate_segment(seg, warm, plan.sample_rate, plan.v_dc, switching=switching,
                                modulation=modulation, delay_samples=delay_samples, t_dead=t_dead, v_f=v_f,
                                substeps=substeps)
         theta_e = float(motor.pole_pairs) * run.states[:, 3]
@@ -298,10 +378,12 @@ def pwm_bench(plan: Plan, motor: MotorParams, *, switching: bool = True, modulat
             currents=run.states[:, :2].copy(),
             w_m=run.states[:, 2].copy() if record_speed else None,
             theta_e=theta_e if record_speed else None,
+            temperature=None if seg.temperature is None else np.full(run.t.shape[0], float(seg.temperature)),
         ))
     data = BenchData(segments=tuple(segments), sample_rate=plan.sample_rate, source="switching PWM plant")
     return data.add_noise(noise, seed) if noise > 0.0 else data
 
 
-__all__ = ["MODULATIONS", "SegmentRun", "duty_cycles", "leg_modes", "period_average_pole_error",
-           "plant_derivatives", "pole_voltages", "pwm_bench", "simulate_segment", "switching_instants"]
+__all__ = ["MODULATIONS", "SegmentRun", "check_inverter", "check_motor", "duty_cycles", "leg_modes",
+           "period_average_pole_error", "plant_derivatives", "pole_voltages", "pwm_bench", "simulate_segment",
+           "switching_instants"]

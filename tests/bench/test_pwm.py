@@ -1,4 +1,4 @@
-"""The independent switching-level PWM plant (tests/helpers/pwm_plant.py) against the engine's averaged bench.
+"""The independent switching-level PWM plant (drivecal/bench/_pwm.py) against the engine's averaged bench.
 
 Agreement figures measured when these tests were written (default motor,
 48 V, plan below at 20 kHz):
@@ -10,7 +10,8 @@ Agreement figures measured when these tests were written (default motor,
   averaged bench: ~4e-6 A locked, ~8e-5 A free (peak currents 6-18 A), i.e.
   < 1e-5 of the peak; asserted < 1e-3 of the peak current;
 * sub-step convergence: the step grid contains every edge, so RK4 converges at
-  fourth order: 16 or 32 -> 64 steps changes the samples by ~1e-13 A -> asserted < 1e-9 A;
+  fourth order: 16 or 32 -> 64 steps changes the samples by ~1e-13 A -> asserted < 1e-9 A
+  (so ``drivecal simulate --inverter switching`` runs 16);
 * delay 1 vs ``engine_bench(delay_samples=1)``: ~4e-6 A (the same ripple effect);
 * dead time 1 us, 10 kHz, 48 V, locked d-step to 11 A: per-period pole error
   -0.48 V * sign(i) to 1e-9 V; samples vs ``engine_bench`` with v_dead = 0.48 V
@@ -24,10 +25,9 @@ import numpy as np
 import pytest
 
 import drivecal as dc
-from drivecal.bench import engine_bench
+from drivecal.bench import engine_bench, pwm_bench, simulate_segment
+from drivecal.bench._pwm import duty_cycles, period_average_pole_error, plant_derivatives
 from drivecal.physics import abc_to_dq, dead_time_error, dq_derivatives, dq_to_abc
-from helpers.pwm_plant import (duty_cycles, period_average_pole_error, plant_derivatives, pwm_bench,
-                               simulate_segment)
 
 PLAN = dc.Plan((
     dc.Segment("locked d-step", 0.005, locked=True, v_d=8.0),
@@ -90,9 +90,10 @@ def test_synchronous_sampling_sees_the_average(engine, switched):
     assert max(_max_error(sine, switched)) < 1e-4
 
 
-def test_substeps_converge(switched):
-    """RK4 on a grid holding every switching edge: doubling the steps changes the samples by < 1e-9 A."""
-    coarse = pwm_bench(PLAN, MOTOR, switching=True, delay_samples=0, substeps=32)
+@pytest.mark.parametrize("substeps", [16, 32])
+def test_substeps_converge(switched, substeps):
+    """RK4 on a grid holding every switching edge: 16 or 32 steps a period give the samples of 64 to < 1e-9 A."""
+    coarse = pwm_bench(PLAN, MOTOR, switching=True, delay_samples=0, substeps=substeps)
     assert max(_max_error(coarse, switched)) < 1e-9
 
 
@@ -175,3 +176,44 @@ def test_duty_cycles_reach_the_references():
         np.testing.assert_allclose(pole - pole.mean(axis=1, keepdims=True), v_abc, atol=1e-12)
     d = duty_cycles(v_abc, 48.0, "svpwm")
     np.testing.assert_allclose(d.max(axis=1) + d.min(axis=1), 1.0, atol=1e-12)
+
+
+def test_winding_temperature_sets_r_and_is_recorded():
+    """A segment at 80 degC runs with R * (1 + alpha_R * (80 - T_ref)) and records its temperature."""
+    hot = dc.Plan((dc.Segment("hot d-step", 0.002, locked=True, v_d=8.0, temperature=80.0),))
+    cold = dc.Plan((dc.Segment("hot d-step", 0.002, locked=True, v_d=8.0),))
+    warm_r = float(MOTOR.R) * (1.0 + float(MOTOR.alpha_R) * (80.0 - float(MOTOR.T_ref)))
+    a = pwm_bench(hot, MOTOR, delay_samples=0, substeps=8)
+    b = pwm_bench(cold, MOTOR.replace(R=warm_r), delay_samples=0, substeps=8)
+    np.testing.assert_array_equal(a.segments[0].currents, b.segments[0].currents)
+    np.testing.assert_array_equal(a.segments[0].temperature, np.full(40, 80.0))
+    assert b.segments[0].temperature is None
+
+
+SHORT = dc.Plan((dc.Segment("d", 0.001, locked=True, v_d=8.0),))
+
+
+@pytest.mark.parametrize("kwargs, motor, plan, needles", [
+    ({"modulation": "spwm"}, MOTOR, SHORT, ["modulation must be one of svpwm, sine, got 'spwm'"]),
+    ({"delay_samples": 0.3}, MOTOR, SHORT, ["delay_samples = 0.3", "multiple of 0.5", "in the motor file"]),
+    ({"t_dead": 3e-5}, MOTOR, SHORT, ["dead_time = 3e-05 s", "half the carrier period (2.5e-05 s at 20000 Hz)"]),
+    ({"t_dead": -1e-6}, MOTOR, SHORT, ["dead_time = -1e-06 s", "must be >= 0"]),
+    ({"v_f": -0.1}, MOTOR, SHORT, ["device_drop = -0.1 V", "below half the DC link (24 V)"]),
+    ({"switching": False, "t_dead": 1e-6}, MOTOR, SHORT, ["averaged inverter has no dead time",
+                                                          "choose the switching inverter"]),
+    ({"substeps": 0}, MOTOR, SHORT, ["substeps = 0"]),
+    ({}, MOTOR.replace(v_dead=0.48), SHORT,
+     ["v_dead = 0.48", "dead time is physical", "give the inverter's dead_time"]),
+    ({}, MOTOR.replace(offset_a=0.05), SHORT, ["offset_a = 0.05", "sensors are ideal"]),
+    ({}, MOTOR.replace(T_coulomb=0.01), SHORT, ["T_coulomb = 0.01", "linear with viscous friction"]),
+    ({}, MOTOR, dc.Plan((dc.Segment("spin", 0.002, locked=False, v_q=12.0),
+                         dc.Segment("coast", 0.002, locked=False, continues=True, inverter="off"))),
+     ["segment 'coast'", "from rest with the inverter on", "averaged inverter"]),
+])
+def test_what_the_plant_cannot_run_is_refused_in_one_sentence(kwargs, motor, plan, needles):
+    with pytest.raises(dc.PlanError) as info:
+        pwm_bench(plan, motor, **{"delay_samples": 0, **kwargs})
+    message = str(info.value)
+    assert "\n" not in message
+    for needle in needles:
+        assert needle in message, (needle, message)
