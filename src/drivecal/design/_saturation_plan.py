@@ -49,7 +49,7 @@ import numpy as np
 
 from ..identify import COND_MAX, CORR_MAX, WEAK_RELATIVE_CI, Identifiability, sensitivity_jacobian
 from ..model import Experiment, model_experiment
-from ..physics import EXPONENTS, MAGNETIC, MotorParams, is_saturating, search_scale
+from ..physics import MAGNETIC, MotorParams, hinkkanen_law, is_saturating, search_scale
 
 #: The steady currents of the locked steps on a saturating axis, as fractions of the top level.
 SATURATION_LEVELS = (1.0 / 3.0, 2.0 / 3.0, 1.0)
@@ -132,18 +132,15 @@ def law_note(motor: MotorParams) -> str:
             f"{float(motor.i_ref):.4g} A)")
 
 
+#: The fitted names in Hinkkanen's coefficients (``physics.hinkkanen_law``'s keys).
+_LAW_KEYS = {"Ld": "a_d0", "Lq": "a_q0", "sat_d": "a_dd", "sat_q": "a_qq", "sat_dq": "a_dq"}
+
+
 def _law_coefficients(values: jnp.ndarray, names: tuple[str, ...], motor: MotorParams) -> jnp.ndarray:
     """``names``' values with Ld, Lq and the per-unit coefficients replaced by Hinkkanen's ``1/Ld``, ``1/Lq``,
-    ``a_dd``, ``a_qq``, ``a_dq`` (``physics.hinkkanen_coefficients``; traceable in ``values``)."""
-    p = dict(zip(names, values))
-    get = lambda n: p.get(n, float(getattr(motor, n)))  # noqa: E731
-    ld, lq, i_ref = get("Ld"), get("Lq"), float(motor.i_ref)
-    s, t, u, v = (float(getattr(motor, n)) for n in EXPONENTS)
-    fd, fq = ld * i_ref, lq * i_ref
-    law = {"Ld": 1.0 / ld, "Lq": 1.0 / lq, "sat_d": get("sat_d") / (ld * fd ** s),
-           "sat_q": get("sat_q") / (lq * fq ** t),
-           "sat_dq": get("sat_dq") * i_ref * jnp.sqrt(lq / ld) / (fd ** (u + 1) * fq ** (v + 2))}
-    return jnp.stack([law.get(n, p[n]) for n in names])
+    ``a_dd``, ``a_qq``, ``a_dq`` (``physics.hinkkanen_law``; traceable in ``values``)."""
+    law = hinkkanen_law(motor.replace(**dict(zip(names, values))))
+    return jnp.stack([law[_LAW_KEYS[n]] if n in _LAW_KEYS else v for n, v in zip(names, values)])
 
 
 def law_verdict(ident: Identifiability, experiment: Experiment, motor: MotorParams,

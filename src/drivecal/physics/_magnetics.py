@@ -149,23 +149,32 @@ def flux_derivatives(state: Any, v_dq: Any, motor: Any, locked: Any, resistance:
     return (dpsi_d, dpsi_q, dw_m, free * w_m), (i_d, i_q)
 
 
+def hinkkanen_law(motor: Any) -> dict[str, Any]:
+    """The law's coefficients in Hinkkanen's SI form, as :func:`hinkkanen_coefficients`, traceable.
+
+    Ld, Lq, i_ref and the per-unit coefficients may be JAX tracers (e.g. under ``jax.jacfwd``); the
+    exponents are taken as they are. Returns the same keys with arrays or numbers.
+    """
+    ld, lq, i_ref = motor.Ld, motor.Lq, motor.i_ref
+    s, t, u, v = (getattr(motor, n) for n in EXPONENTS)
+    fd, fq = ld * i_ref, lq * i_ref
+    return {
+        "a_d0": 1.0 / ld, "a_dd": motor.sat_d / (ld * fd ** s),
+        "a_q0": 1.0 / lq, "a_qq": motor.sat_q / (lq * fq ** t),
+        "a_dq": motor.sat_dq * i_ref * (lq / ld) ** 0.5 / (fd ** (u + 1) * fq ** (v + 2)),
+        "S": s, "T": t, "U": u, "V": v,
+    }
+
+
 def hinkkanen_coefficients(motor: Any) -> dict[str, float]:
     """The law's coefficients in Hinkkanen's SI form (a machine with ``lambda_m = 0``, or about its magnet).
 
     ``i_d = (a_d0 + a_dd*|d|**S + a_dq/(V + 2)*|d|**U*|q|**(V + 2)) * d`` and
     ``i_q = (a_q0 + a_qq*|q|**T + a_dq/(U + 2)*|d|**(U + 2)*|q|**V) * q`` with ``d = psi_d - lambda_m``,
     ``q = psi_q`` (Wb): ``a_d0 = 1/Ld`` (1/H), ``a_dd`` (A/Wb^(S+1)), ``a_dq`` (A/Wb^(U+V+3)).
-    Unbatched motors.
+    Unbatched motors; plain floats (:func:`hinkkanen_law` is the traceable form).
     """
-    ld, lq, i_ref = float(motor.Ld), float(motor.Lq), float(motor.i_ref)
-    s, t, u, v = (float(getattr(motor, n)) for n in EXPONENTS)
-    fd, fq = ld * i_ref, lq * i_ref
-    return {
-        "a_d0": 1.0 / ld, "a_dd": float(motor.sat_d) / (ld * fd ** s),
-        "a_q0": 1.0 / lq, "a_qq": float(motor.sat_q) / (lq * fq ** t),
-        "a_dq": float(motor.sat_dq) * i_ref * np.sqrt(lq / ld) / (fd ** (u + 1) * fq ** (v + 2)),
-        "S": s, "T": t, "U": u, "V": v,
-    }
+    return {k: float(v) for k, v in hinkkanen_law(motor).items()}
 
 
 def from_hinkkanen(motor: Any, *, a_d0: float, a_dd: float, S: float, a_q0: float, a_qq: float, T: float,
