@@ -58,9 +58,9 @@ import numpy as np
 from ..data import BenchData, SegmentData
 from ..errors import PlanError
 from ..physics import MotorParams, abc_to_dq, dq_to_abc
-from ..plan import Plan, Segment
+from ..plan import INVERTER_MODULATIONS, Plan, Segment, inverter_setting_error
 
-MODULATIONS = ("svpwm", "sine")
+MODULATIONS = INVERTER_MODULATIONS  # the plan file's names
 
 
 class SegmentRun(NamedTuple):
@@ -211,14 +211,10 @@ def check_inverter(sample_rate: float, v_dc: float, *, switching: bool = True, m
         raise PlanError(f"delay_samples = {delay_samples!r}: the switching plant loads its duty cycles at the "
                         "carrier peak or valley, so the computation delay must be a multiple of 0.5 samples >= 0; "
                         "set delay_samples in the motor file to 0, 0.5, 1, 1.5, ...")
-    half_period = 0.5 / sample_rate
-    if not (math.isfinite(t_dead) and 0.0 <= t_dead < half_period):
-        raise PlanError(f"dead_time = {t_dead:g} s: the dead time per switching edge must be >= 0 and shorter than "
-                        f"half the carrier period ({half_period:g} s at {sample_rate:g} Hz); give e.g. "
-                        "dead_time = \"1 us\".")
-    if not (math.isfinite(v_f) and 0.0 <= v_f < 0.5 * v_dc):
-        raise PlanError(f"device_drop = {v_f:g} V: the devices' forward drop must be >= 0 and below half the DC "
-                        f"link ({0.5 * v_dc:g} V); give e.g. device_drop = \"0.7 V\".")
+    bad = inverter_setting_error(t_dead, v_f, sample_rate, v_dc)
+    if bad is not None:
+        key, value, unit, reason = bad
+        raise PlanError(f"{key} = {value:g} {unit}: {reason}")
     if not switching and (t_dead != 0.0 or v_f != 0.0):
         raise PlanError(f"the averaged inverter has no dead time or device drop (dead_time = {t_dead:g} s, "
                         f"device_drop = {v_f:g} V); choose the switching inverter, or set both to 0.")

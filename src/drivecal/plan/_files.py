@@ -22,7 +22,7 @@ from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError,
 from . import _waveforms as waveforms
 from ..errors import DrivecalError
 from .._units import StrictModel, explain, quantity, read_toml
-from ._plan import Inverter, Plan, Segment
+from ._plan import Inverter, Plan, Segment, inverter_setting_error
 
 Seconds, Hertz, Volts, Amperes = quantity("time"), quantity("frequency"), quantity("voltage"), quantity("current")
 
@@ -199,15 +199,11 @@ def _check_spec(spec: PlanSpec, source: str) -> list[int]:
 
 
 def _check_inverter(spec: PlanSpec, source: str) -> None:
-    inv, where = spec.inverter, f"{source}: 'inverter"
-    half_period = 0.5 / spec.sample_rate
-    if not 0.0 <= inv.dead_time < half_period:
-        raise DrivecalError(f"{where}.dead_time' must be >= 0 and shorter than half the carrier period "
-                            f"({half_period:g} s at {spec.sample_rate:g} Hz), got {inv.dead_time:g} s; write e.g. "
-                            "dead_time = \"1 us\" (0 for none).")
-    if not 0.0 <= inv.device_drop < 0.5 * spec.v_dc:
-        raise DrivecalError(f"{where}.device_drop' must be >= 0 and below half the DC link ({0.5 * spec.v_dc:g} V), "
-                            f"got {inv.device_drop:g} V; write e.g. device_drop = \"0.7 V\" (0 for none).")
+    inv = spec.inverter
+    bad = inverter_setting_error(inv.dead_time, inv.device_drop, spec.sample_rate, spec.v_dc)
+    if bad is not None:
+        key, _, _, reason = bad
+        raise DrivecalError(f"{source}: 'inverter.{key}' {reason}")
 
 
 def _check_waveform(spec, where: str) -> None:

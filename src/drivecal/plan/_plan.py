@@ -86,6 +86,25 @@ INVERTER_MODELS = ("averaged", "switching")
 INVERTER_MODULATIONS = ("svpwm", "sine")
 
 
+def inverter_setting_error(dead_time: float, device_drop: float, sample_rate: float,
+                           v_dc: float) -> tuple[str, float, str, str] | None:
+    """The first switching-inverter setting out of range, as ``(key, value, unit, reason)``; None if both hold.
+
+    The dead time per edge (s) must lie in ``[0, T/2)`` of the carrier period ``T = 1 / sample_rate``
+    (Hz), the device drop (V) in ``[0, V_dc/2)``. ``reason`` is the sentence's end, naming the limit
+    and the fix; the plan file and the switching plant each put their own subject before it.
+    """
+    half_period = 0.5 / sample_rate
+    if not (math.isfinite(dead_time) and 0.0 <= dead_time < half_period):
+        return ("dead_time", dead_time, "s", "must be >= 0 and shorter than half the carrier period "
+                f"({half_period:g} s at {sample_rate:g} Hz), got {dead_time:g} s; write e.g. "
+                "dead_time = \"1 us\" (0 for none).")
+    if not (math.isfinite(device_drop) and 0.0 <= device_drop < 0.5 * v_dc):
+        return ("device_drop", device_drop, "V", f"must be >= 0 and below half the DC link ({0.5 * v_dc:g} V), got "
+                f"{device_drop:g} V; write e.g. device_drop = \"0.7 V\" (0 for none).")
+    return None
+
+
 @dataclasses.dataclass(frozen=True)
 class Inverter:
     """The bench's inverter as ``drivecal simulate`` runs it (a plan file's ``[inverter]`` table).
