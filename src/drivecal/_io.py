@@ -43,11 +43,15 @@ def write_json(path: str | os.PathLike, payload: Any) -> None:
 
 def save_figure(fig, path: str | os.PathLike, dpi: int = 110) -> None:
     """Save a matplotlib figure as PNG, atomically, and close it."""
-    import matplotlib.pyplot as plt
+    from ._figures import png_bytes
 
+    write_bytes(path, png_bytes(fig, dpi))
+
+
+def write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """Write ``data`` (a PNG, say) to ``path``, atomically."""
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi, bbox_inches="tight", metadata={"Software": None})
-    plt.close(fig)
+        tmp.write_bytes(data)
 
 
 def check_output_path(path: str | os.PathLike, option: str, *, directory: bool = False,

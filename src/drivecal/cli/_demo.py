@@ -91,14 +91,19 @@ def demo(out_dir, noise, seed, as_json):
     """
     if out_dir is not None:
         _check_out(out_dir, "--out", directory=True)
+    import contextlib
+
+    from .._figures import FigureRenderer
     from ..demo import run_demo, write_demo_outputs
 
     console = _console(as_json)
-    with console.status("running the synthetic bench and fitting...") as status:
+    # The figure workers start now and load matplotlib while the bench runs and the fits compile.
+    renderer = FigureRenderer() if out_dir is not None else contextlib.nullcontext()
+    with renderer, console.status("running the synthetic bench and fitting...") as status:
         result = run_demo(noise=noise, seed=seed, progress=lambda m: status.update(m) if not as_json else None)
         if out_dir is not None:
             status.update("writing figures and report.json")
-            written = write_demo_outputs(result, out_dir)
+            written = write_demo_outputs(result, out_dir, renderer)
     if as_json:
         click.echo(json.dumps(result.to_dict(), indent=2))
     else:

@@ -253,19 +253,22 @@ def _estimate_names(text: str) -> tuple[str, ...]:
 
 
 def _write_fit_outputs(cal, payload, out_dir):
-    from .._io import prepare_output_dir, save_figure, write_json
+    from .._figures import FigureRenderer
+    from .._io import prepare_output_dir, write_bytes, write_json
     from ..report import plots, write_html_report
 
     out = prepare_output_dir(out_dir)
     written = []
-    figures = {
-        "convergence.png": plots.convergence_figure(cal),
-        "estimates.png": plots.estimates_figure(cal),
-        "identifiability.png": plots.identifiability_figure({cal.source: cal.identifiability}),
+    jobs = {
+        "convergence.png": plots.convergence_job(cal),
+        "estimates.png": plots.estimates_job(cal),
+        "identifiability.png": plots.identifiability_job({cal.source: cal.identifiability}),
     }
-    for name, fig in figures.items():
-        save_figure(fig, out / name)
-        written.append(out / name)
-    write_json(out / "report.json", payload)
-    write_html_report(payload, out / "report.html")
+    with FigureRenderer() as renderer:
+        pending = {name: renderer.submit(kind, kwargs, dpi=110) for name, (kind, kwargs) in jobs.items()}
+        write_json(out / "report.json", payload)
+        write_html_report(payload, out / "report.html", renderer=renderer)
+        for name, job in pending.items():
+            write_bytes(out / name, job.result())
+            written.append(out / name)
     return written + [out / "report.json", out / "report.html"]

@@ -24,7 +24,7 @@ from ..results import Calibration, demo_document
 from ..physics import DEFAULT_MOTOR, MotorParams
 from ..plan import Plan, default_plan, locked_q_step_plan
 from ..report import build_result
-from .._io import prepare_output_dir, save_figure, write_json
+from .._io import prepare_output_dir, write_bytes, write_json
 
 #: The datasheet guess the demo starts from, relative to the truth.
 GUESS_FACTORS = {"R": 1.5, "Ld": 0.6, "Lq": 1.4, "lambda_m": 0.7}
@@ -117,38 +117,40 @@ def run_demo(
     return DemoResult(truth=truth, guess=guess, noise=noise, seed=seed, default=good, poor=poor)
 
 
-def write_demo_outputs(result: DemoResult, out_dir: str | Path) -> list[Path]:
+def write_demo_outputs(result: DemoResult, out_dir: str | Path, renderer=None) -> list[Path]:
     """Write ``report.json``, ``report.html`` and the PNG figures into ``out_dir``; return the paths.
 
     The HTML is rendered from the JSON document exactly as saved (passed
     through ``json``), so ``drivecal report DIR/report.json --html X`` gives
-    the same page apart from its time stamp.
+    the same page apart from its time stamp. The figures are drawn in
+    ``renderer``'s worker processes (``drivecal._figures.FigureRenderer``; default:
+    one made here), the PNG files' while the result JSON is built.
     """
+    from .._figures import FigureRenderer
     from ..report import plots
     from ..report import write_html_report
 
+    if renderer is None:
+        with FigureRenderer() as own:
+            return write_demo_outputs(result, out_dir, own)
     out = prepare_output_dir(out_dir)
-    written = []
-
-    def put(name, fig):
-        save_figure(fig, out / name)
-        written.append(out / name)
-
     truth = result.truth.vector(result.default.calibration.names)
+    jobs = {}
     for run, tag in ((result.default, "default"), (result.poor, "locked_q_step")):
-        put(f"excitation_{tag}.png", plots.excitation_figure(run.clean, run.bench, title=run.label))
-        put(f"convergence_{tag}.png", plots.convergence_figure(run.calibration, truth=truth))
-        put(f"estimates_{tag}.png", plots.estimates_figure(run.calibration, truth=truth))
-    put(
-        "identifiability.png",
-        plots.identifiability_figure(
-            {result.default.label: result.default.calibration.identifiability,
-             result.poor.label: result.poor.calibration.identifiability}
-        ),
-    )
+        jobs[f"excitation_{tag}.png"] = plots.excitation_job(run.clean, run.bench, title=run.label)
+        jobs[f"convergence_{tag}.png"] = plots.convergence_job(run.calibration, truth=truth)
+        jobs[f"estimates_{tag}.png"] = plots.estimates_job(run.calibration, truth=truth)
+    jobs["identifiability.png"] = plots.identifiability_job(
+        {result.default.label: result.default.calibration.identifiability,
+         result.poor.label: result.poor.calibration.identifiability})
+    pending = {name: renderer.submit(kind, kwargs, dpi=110) for name, (kind, kwargs) in jobs.items()}
     doc = json.loads(json.dumps(result.to_dict(), allow_nan=False))
+    written = []
+    for name, job in pending.items():
+        write_bytes(out / name, job.result())
+        written.append(out / name)
     write_json(out / "report.json", doc)
     written.append(out / "report.json")
-    write_html_report(doc, out / "report.html")
+    write_html_report(doc, out / "report.html", renderer=renderer)
     written.append(out / "report.html")
     return written

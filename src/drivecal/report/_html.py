@@ -54,14 +54,14 @@ def figure_data_uri(fig) -> str:
 
     Deterministic: fixed dpi, tight bounding box, no ``Software`` metadata.
     """
-    import matplotlib
-    import matplotlib.pyplot as plt
+    from .. import _figures
 
-    matplotlib.rcParams["svg.hashsalt"] = "drivecal"
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=FIG_DPI, bbox_inches="tight", metadata={"Software": None})
-    plt.close(fig)
-    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+    return png_data_uri(_figures.png_bytes(fig, FIG_DPI))
+
+
+def png_data_uri(png: bytes) -> str:
+    """PNG bytes as a ``data:`` URI."""
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
 
 
 def verdict_html(fit: Mapping[str, Any]) -> str:
@@ -137,8 +137,8 @@ def _plan_html(plan: Mapping[str, Any] | None) -> str:
             f"{plan['current_limit']:.6g} A</p><table class='plan'>{head}{rows}</table>")
 
 
-def _figures(fit: Mapping[str, Any], label: str) -> list[tuple[str, str]]:
-    """(caption, data URI) of every figure of one fit, rendered from the JSON alone."""
+def figure_jobs(fit: Mapping[str, Any], label: str) -> list[tuple[str, tuple[str, dict[str, Any]]]]:
+    """(caption, figure job of ``report.plots``) of every figure of one fit, from the JSON alone."""
     from . import plots
     from ..results import Calibration
 
@@ -147,34 +147,44 @@ def _figures(fit: Mapping[str, Any], label: str) -> list[tuple[str, str]]:
     segments = fit.get("segments")
     if segments:
         out.append(("Excitation (top) and currents: measured (dots) and predicted by the fit (lines), per segment.",
-                    figure_data_uri(plots.currents_figure(segments, title=label))))
+                    plots.currents_job(segments, title=label)))
         out.append(("Residuals per segment and axis; dashed: +-1.96 sigma_hat.",
-                    figure_data_uri(plots.residuals_figure(segments, sigma_hat=fit["sigma_hat"]))))
+                    plots.residuals_job(segments, sigma_hat=fit["sigma_hat"])))
     if cal.history is not None:
         out.append(("Convergence: each fitted parameter per accepted LM step, divided by its final value.",
-                    figure_data_uri(plots.convergence_figure(cal))))
+                    plots.convergence_job(cal)))
     truth = fit.get("truth")
     true_vec = np.array([truth[n]["true"] for n in cal.names]) if truth else None
     out.append((f"Estimates with 95 % intervals, as deviation from the {'truth' if truth else 'estimate'}.",
-                figure_data_uri(plots.estimates_figure(cal, truth=true_vec))))
+                plots.estimates_job(cal, truth=true_vec)))
     out.append(("Identifiability before fitting: singular-value spectrum and per-parameter sensitivity "
-                "(dead parameters marked).",
-                figure_data_uri(plots.identifiability_figure({label: cal.identifiability}))))
+                "(dead parameters marked).", plots.identifiability_job({label: cal.identifiability})))
     if len(cal.fit_names) >= 2:
-        out.append(("Correlation of the fitted parameters.", figure_data_uri(plots.correlation_figure(cal))))
+        out.append(("Correlation of the fitted parameters.", plots.correlation_job(cal)))
     if fit.get("flux_maps"):
         out.append(("Flux linkages and incremental inductances of the calibrated law with 95 % bands, over the "
-                    "currents the test reached (dotted where extrapolated).",
-                    figure_data_uri(plots.flux_maps_figure(fit["flux_maps"]))))
+                    "currents the test reached (dotted where extrapolated).", plots.flux_maps_job(fit["flux_maps"])))
     return out
 
 
-def fit_section_html(fit: Mapping[str, Any], label: str, anchor: str) -> str:
-    """One fit's section: verdict first, then table, statistics, figures, plan, prior, provenance."""
-    figs = "".join(
-        f'<figure><img alt="{_e(cap)}" src="{uri}"><figcaption>{_e(cap)}</figcaption></figure>'
-        for cap, uri in _figures(fit, label)
+def _figures_html(figures: list[tuple[str, bytes]]) -> str:
+    return "".join(
+        f'<figure><img alt="{_e(cap)}" src="{png_data_uri(png)}"><figcaption>{_e(cap)}</figcaption></figure>'
+        for cap, png in figures
     )
+
+
+def fit_section_html(fit: Mapping[str, Any], label: str, anchor: str,
+                     figures: list[tuple[str, bytes]] | None = None) -> str:
+    """One fit's section: verdict first, then table, statistics, figures, plan, prior, provenance.
+
+    ``figures``: (caption, PNG bytes) of the fit's :func:`figure_jobs`, when already drawn; else drawn here.
+    """
+    if figures is None:
+        from .._figures import render
+
+        figures = [(cap, render(name, kwargs, FIG_DPI)) for cap, (name, kwargs) in figure_jobs(fit, label)]
+    figs = _figures_html(figures)
     prior = fit.get("prior") or {n: p.get("prior") for n, p in fit["parameters"].items()}
     prior_rows = [(f"{n} [{UNITS.get(n, 'N*m' if n == 'T_load' else '-')}]", _fmt(v)) for n, v in prior.items()]
     fixed_rows = [(f"{n} [{UNITS.get(n, '-')}]", _fmt(v)) for n, v in fit.get("fixed", {}).items()]
@@ -198,13 +208,17 @@ def fit_section_html(fit: Mapping[str, Any], label: str, anchor: str) -> str:
     )
 
 
-def render_html(result: Mapping[str, Any], *, generated: str | None = None) -> str:
+def render_html(result: Mapping[str, Any], *, generated: str | None = None, renderer=None) -> str:
     """The whole page as a string.
 
     Args:
         result: one fit's result JSON, or a demo document with ``designs``.
         generated: the time stamp to print (default: now, UTC, ISO 8601).
+        renderer: a started ``drivecal._figures.FigureRenderer`` to draw the figures in (default: one
+            made for this page, its workers closed at the end).
     """
+    from .._figures import FigureRenderer
+
     from ..results import result_fits
 
     # Render from exactly what a saved file holds (tuples become lists, numpy
@@ -220,7 +234,15 @@ def render_html(result: Mapping[str, Any], *, generated: str | None = None) -> s
             for k, f in fits.items()
         )
         overview = f"<h2>Verdicts</h2><ul class='overview'>{items}</ul>"
-    sections = "".join(fit_section_html(f, k, f"fit-{k}") for k, f in fits.items())
+    jobs = {k: figure_jobs(f, k) for k, f in fits.items()}
+    flat = [(name, kwargs, FIG_DPI) for k in fits for _, (name, kwargs) in jobs[k]]
+    if renderer is None:
+        with FigureRenderer() as own:
+            pngs = iter(own.render_all(flat))
+    else:
+        pngs = iter(renderer.render_all(flat))
+    sections = "".join(fit_section_html(f, k, f"fit-{k}", [(cap, next(pngs)) for cap, _ in jobs[k]])
+                       for k, f in fits.items())
     extra = ""
     if "noise_sigma" in result and "seed" in result:
         extra = (f"<p>Synthetic bench on the Jaxonomy engine: sensor noise {result['noise_sigma']:g} A, "
@@ -235,7 +257,8 @@ def render_html(result: Mapping[str, Any], *, generated: str | None = None) -> s
     )
 
 
-def write_html_report(result: Mapping[str, Any], path: str | os.PathLike, *, generated: str | None = None) -> None:
+def write_html_report(result: Mapping[str, Any], path: str | os.PathLike, *, generated: str | None = None,
+                      renderer=None) -> None:
     """Write the self-contained HTML report of a saved result dict to ``path``, atomically.
 
     Args:
@@ -243,7 +266,8 @@ def write_html_report(result: Mapping[str, Any], path: str | os.PathLike, *, gen
             ``drivecal.report.build_result(...)`` passed through JSON).
         path: the ``.html`` file to write.
         generated: time stamp to print (default: now).
+        renderer: a started ``drivecal._figures.FigureRenderer`` for the figures (see :func:`render_html`).
     """
-    page = render_html(result, generated=generated)
+    page = render_html(result, generated=generated, renderer=renderer)
     with atomic_path(path) as tmp:
         tmp.write_text(page, encoding="utf-8")

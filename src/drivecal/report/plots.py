@@ -1,132 +1,96 @@
-"""Figures, each returned as a matplotlib Figure (save it, or show it in a notebook)."""
+"""Figures, each returned as a matplotlib Figure (save it, or show it in a notebook).
+
+Each ``*_figure`` function has a ``*_job`` twin giving ``(name, inputs)``: the
+figure's plain inputs (numbers, arrays, strings), which ``drivecal._figures``
+draws in this process or in a worker (``FigureRenderer``). The figures
+themselves are defined once, in ``drivecal._figures``.
+"""
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg", force=False)
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from .. import _figures
+from ..physics import UNITS
 
-from ..data import BenchData  # noqa: E402
-from ..results import Calibration  # noqa: E402
-from ..identify import Identifiability  # noqa: E402
-from ..physics import UNITS  # noqa: E402
+if TYPE_CHECKING:
+    from ..data import BenchData
+    from ..identify import Identifiability
+    from ..results import Calibration
+
+Job = tuple[str, dict[str, Any]]
 
 
-def excitation_figure(clean: BenchData, noisy: BenchData, title: str = ""):
+def _build(job: Job):
+    name, kwargs = job
+    return _figures.FIGURES[name](**kwargs)
+
+
+def _segments(data: "BenchData") -> list[dict[str, Any]]:
+    return [{"name": s.name, "locked": bool(s.locked), "t": np.asarray(s.t), "voltages": np.asarray(s.voltages),
+             "currents": np.asarray(s.currents)} for s in data.segments]
+
+
+def excitation_job(clean: "BenchData", noisy: "BenchData", title: str = "") -> Job:
+    """The inputs of :func:`excitation_figure`."""
+    return "excitation", {"clean": _segments(clean), "noisy": _segments(noisy), "title": title}
+
+
+def excitation_figure(clean: "BenchData", noisy: "BenchData", title: str = ""):
     """Applied voltages (top) and currents (bottom) per segment: noise-free lines, measured dots."""
-    n = len(clean.segments)
-    fig, axes = plt.subplots(2, n, figsize=(4.2 * n, 5.2), squeeze=False, sharex="col")
-    for j, (c, m) in enumerate(zip(clean.segments, noisy.segments)):
-        t_ms = c.t * 1e3
-        ax_v, ax_i = axes[0, j], axes[1, j]
-        ax_v.plot(t_ms, c.voltages[:, 0], color="C0", label="v_d")
-        ax_v.plot(t_ms, c.voltages[:, 1], color="C3", label="v_q")
-        ax_v.set_title(f"{c.name} ({'locked' if c.locked else 'free'})", fontsize=10)
-        ax_i.plot(t_ms, m.currents[:, 0], ".", ms=1.5, color="0.6", alpha=0.6)
-        ax_i.plot(t_ms, m.currents[:, 1], ".", ms=1.5, color="0.6", alpha=0.6, label="measured")
-        ax_i.plot(t_ms, c.currents[:, 0], color="C0", lw=1.6, label="i_d (noise-free)")
-        ax_i.plot(t_ms, c.currents[:, 1], color="C3", lw=1.6, label="i_q (noise-free)")
-        ax_i.set_xlabel("time [ms]")
-        for ax in (ax_v, ax_i):
-            ax.grid(alpha=0.3)
-    axes[0, 0].set_ylabel("voltage [V]")
-    axes[1, 0].set_ylabel("current [A]")
-    axes[0, 0].legend(fontsize=8)
-    axes[1, 0].legend(fontsize=8, markerscale=5)
-    fig.suptitle(f"Excitation and response{': ' + title if title else ''}")
-    fig.tight_layout()
-    return fig
+    return _build(excitation_job(clean, noisy, title))
 
 
-def convergence_figure(calibration: Calibration, truth: np.ndarray | None = None):
-    """Each fitted parameter per accepted LM step, divided by the truth (or the final estimate)."""
+def convergence_job(calibration: "Calibration", truth: np.ndarray | None = None) -> Job:
+    """The inputs of :func:`convergence_figure`."""
     history = calibration.history
     if history is None:
         raise ValueError("convergence_figure needs a single fit (a batch records no history)")
-    names = calibration.fit_names
+    names = tuple(calibration.fit_names)
     idx = [calibration.names.index(n) for n in names]
     ref = np.asarray(truth)[idx] if truth is not None else np.asarray(calibration.estimate)[idx]
-    fig, ax = plt.subplots(figsize=(6.5, 3.8))
-    steps = np.arange(history.shape[0])
-    for k, n in enumerate(names):
-        ax.plot(steps, history[:, k] / ref[k], "o-", ms=4, label=n)
-    ax.axhline(1.0, color="k", lw=0.8, ls="--")
-    ax.set_xlabel("accepted Levenberg-Marquardt step")
-    ax.set_ylabel("estimate / " + ("truth" if truth is not None else "final estimate") + " [-]")
-    ax.set_title("Convergence")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=9)
-    fig.tight_layout()
-    return fig
+    return "convergence", {"history": np.asarray(history), "names": names, "ref": ref,
+                           "against_truth": truth is not None}
 
 
-def estimates_figure(calibration: Calibration, truth: np.ndarray | None = None):
+def convergence_figure(calibration: "Calibration", truth: np.ndarray | None = None):
+    """Each fitted parameter per accepted LM step, divided by the truth (or the final estimate)."""
+    return _build(convergence_job(calibration, truth))
+
+
+def estimates_job(calibration: "Calibration", truth: np.ndarray | None = None) -> Job:
+    """The inputs of :func:`estimates_figure`."""
+    names = tuple(calibration.names)
+    return "estimates", {
+        "names": names, "units": tuple(UNITS[n] for n in names), "estimate": np.asarray(calibration.estimate),
+        "ci95": np.asarray(calibration.ci95), "identifiable": tuple(bool(x) for x in calibration.identifiable),
+        "ref": np.asarray(truth) if truth is not None else np.asarray(calibration.estimate),
+        "against_truth": truth is not None}
+
+
+def estimates_figure(calibration: "Calibration", truth: np.ndarray | None = None):
     """Each estimate with its 95 % interval, as a deviation (%) from the truth or the estimate."""
-    names = calibration.names
-    ref = np.asarray(truth) if truth is not None else np.asarray(calibration.estimate)
-    fig, axes = plt.subplots(1, len(names), figsize=(3.0 * len(names), 3.4), squeeze=False)
-    for i, (ax, n) in enumerate(zip(axes[0], names)):
-        est = 100.0 * (calibration.estimate[i] - ref[i]) / ref[i]
-        ax.axhline(0.0, color="C0", lw=2, label="truth" if truth is not None else "estimate")
-        if calibration.identifiable[i]:
-            lo, hi = 100.0 * (calibration.ci95[i] - ref[i]) / ref[i]
-            ax.errorbar([0], [est], yerr=[[est - lo], [hi - est]], fmt="o", color="C3", capsize=6,
-                        label="estimate, 95 % CI")
-            ax.set_title(f"{n} [{UNITS[n]}]\n{calibration.estimate[i]:.5g}", fontsize=10)
-        else:
-            ax.plot([0], [est], "x", color="0.4", ms=10, label="held at prior")
-            ax.set_title(f"{n} [{UNITS[n]}]\nnot identifiable", fontsize=10, color="C3")
-        ax.set_xticks([])
-        ax.set_xlim(-1, 1)
-        ax.grid(alpha=0.3, axis="y")
-    axes[0, 0].set_ylabel("deviation from " + ("truth" if truth is not None else "estimate") + " [%]")
-    axes[0, 0].legend(fontsize=8, loc="best")
-    fig.suptitle("Estimates with 95 % confidence intervals")
-    fig.tight_layout()
-    return fig
+    return _build(estimates_job(calibration, truth))
 
 
-def identifiability_figure(reports: Mapping[str, Identifiability]):
+def identifiability_job(reports: Mapping[str, "Identifiability"]) -> Job:
+    """The inputs of :func:`identifiability_figure`."""
+    return "identifiability", {"reports": [
+        {"label": label, "names": tuple(rep.names), "rank": int(rep.rank),
+         "singular_values": np.asarray(rep.singular_values), "sensitivity": np.asarray(rep.sensitivity),
+         "dead": tuple(rep.dead_params)} for label, rep in reports.items()]}
+
+
+def identifiability_figure(reports: Mapping[str, "Identifiability"]):
     """Singular-value spectra (left) and per-parameter sensitivity (right) of several designs."""
-    fig, (ax_s, ax_p) = plt.subplots(1, 2, figsize=(11, 4))
-    floor = 1e-17
-    width = 0.8 / max(len(reports), 1)
-    for k, (label, rep) in enumerate(reports.items()):
-        sv = np.asarray(rep.singular_values)
-        rel = np.maximum(sv / sv[0], floor)
-        ax_s.semilogy(np.arange(1, len(sv) + 1), rel, "o-", ms=7,
-                      label=f"{label}: rank {rep.rank}/{len(rep.names)}")
-        sens = np.asarray(rep.sensitivity)
-        x = np.arange(len(rep.names)) + (k - (len(reports) - 1) / 2) * width
-        ax_p.bar(x, np.maximum(sens, floor), width, label=label, color=f"C{k}")
-        for xi, name, s in zip(x, rep.names, sens):
-            if name in rep.dead_params:
-                ax_p.text(xi, floor * 10, "dead", ha="center", va="bottom", fontsize=8, rotation=90, color="C3")
-    names = next(iter(reports.values())).names
-    ax_s.set_xlabel("singular-value index")
-    ax_s.set_ylabel("sigma_i / sigma_1 (column-normalised J) [-]")
-    ax_s.set_title("Singular-value spectrum")
-    ax_s.set_xticks(np.arange(1, len(names) + 1))
-    ax_s.grid(alpha=0.3, which="both")
-    ax_s.legend(fontsize=8)
-    ax_p.set_yscale("log")
-    ax_p.set_xticks(np.arange(len(names)))
-    ax_p.set_xticklabels(names)
-    ax_p.set_ylabel("||dI / d ln(theta)|| [A]")
-    ax_p.set_title("Per-parameter sensitivity")
-    ax_p.grid(alpha=0.3, axis="y", which="both")
-    ax_p.legend(fontsize=8)
-    fig.suptitle("Identifiability before fitting")
-    fig.tight_layout()
-    return fig
+    return _build(identifiability_job(reports))
 
 
-def _segment_arrays(seg: Mapping) -> dict[str, np.ndarray]:
-    return {k: np.asarray(seg[k], dtype=float) for k in ("t", "v_d", "v_q", "i_d", "i_q", "i_d_pred", "i_q_pred")}
+def currents_job(segments: Sequence[Mapping], title: str = "") -> Job:
+    """The inputs of :func:`currents_figure`."""
+    return "currents", {"segments": list(segments), "title": title}
 
 
 def currents_figure(segments: Sequence[Mapping], title: str = ""):
@@ -138,31 +102,12 @@ def currents_figure(segments: Sequence[Mapping], title: str = ""):
             ``i_d``, ``i_q`` measured and ``i_d_pred``, ``i_q_pred`` predicted (A).
         title: appended to the figure title.
     """
-    n = len(segments)
-    fig, axes = plt.subplots(2, n, figsize=(4.2 * n, 5.2), squeeze=False, sharex="col")
-    for j, seg in enumerate(segments):
-        a = _segment_arrays(seg)
-        t_ms = a["t"] * 1e3
-        ax_v, ax_i = axes[0, j], axes[1, j]
-        ax_v.plot(t_ms, a["v_d"], color="C0", label="v_d")
-        ax_v.plot(t_ms, a["v_q"], color="C3", label="v_q")
-        ax_v.set_title(f"{seg['name']} ({'locked' if seg['locked'] else 'free'})", fontsize=10)
-        ax_i.plot(t_ms, a["i_d"], ".", ms=1.5, color="C0", alpha=0.35)
-        ax_i.plot(t_ms, a["i_q"], ".", ms=1.5, color="C3", alpha=0.35)
-        ax_i.plot(t_ms, a["i_d_pred"], color="k", lw=1.2, label="predicted (fit)")
-        ax_i.plot(t_ms, a["i_q_pred"], color="k", lw=1.2)
-        ax_i.plot([], [], ".", color="C0", label="i_d measured")
-        ax_i.plot([], [], ".", color="C3", label="i_q measured")
-        ax_i.set_xlabel("time [ms]")
-        for ax in (ax_v, ax_i):
-            ax.grid(alpha=0.3)
-    axes[0, 0].set_ylabel("voltage [V]")
-    axes[1, 0].set_ylabel("current [A]")
-    axes[0, 0].legend(fontsize=8)
-    axes[1, 0].legend(fontsize=8, markerscale=4)
-    fig.suptitle(f"Excitation, measured and predicted currents{': ' + title if title else ''}")
-    fig.tight_layout()
-    return fig
+    return _build(currents_job(segments, title))
+
+
+def residuals_job(segments: Sequence[Mapping], sigma_hat: float | None = None) -> Job:
+    """The inputs of :func:`residuals_figure`."""
+    return "residuals", {"segments": list(segments), "sigma_hat": sigma_hat}
 
 
 def residuals_figure(segments: Sequence[Mapping], sigma_hat: float | None = None):
@@ -172,48 +117,22 @@ def residuals_figure(segments: Sequence[Mapping], sigma_hat: float | None = None
         segments: the result JSON's ``segments`` section (see :func:`currents_figure`).
         sigma_hat: residual standard deviation of the fit (A), for the band.
     """
-    n = len(segments)
-    fig, axes = plt.subplots(2, n, figsize=(4.2 * n, 4.6), squeeze=False, sharex="col", sharey="row")
-    for j, seg in enumerate(segments):
-        a = _segment_arrays(seg)
-        t_ms = a["t"] * 1e3
-        for k, (axis, color) in enumerate((("i_d", "C0"), ("i_q", "C3"))):
-            r = a[axis] - a[axis + "_pred"]
-            ax = axes[k, j]
-            ax.plot(t_ms, r * 1e3, ".", ms=1.5, color=color, alpha=0.6)
-            if sigma_hat is not None:
-                for sgn in (-1, 1):
-                    ax.axhline(sgn * 1.96 * sigma_hat * 1e3, color="k", lw=0.8, ls="--")
-            ax.axhline(0.0, color="k", lw=0.6)
-            ax.set_title(f"{seg['name']}: {axis}, RMS {np.sqrt(np.mean(r**2)) * 1e3:.3g} mA", fontsize=9)
-            ax.grid(alpha=0.3)
-        axes[1, j].set_xlabel("time [ms]")
-    axes[0, 0].set_ylabel("i_d residual [mA]")
-    axes[1, 0].set_ylabel("i_q residual [mA]")
-    fig.suptitle("Residuals (measured - predicted)" + (", dashed: +-1.96 sigma_hat" if sigma_hat else ""))
-    fig.tight_layout()
-    return fig
+    return _build(residuals_job(segments, sigma_hat))
 
 
-def correlation_figure(calibration: Calibration):
+def correlation_job(calibration: "Calibration") -> Job:
+    """The inputs of :func:`correlation_figure`."""
+    return "correlation", {"names": tuple(calibration.fit_names), "corr": np.asarray(calibration.correlation)}
+
+
+def correlation_figure(calibration: "Calibration"):
     """Heat-map of the correlation matrix of the fitted parameters, values written in each cell."""
-    names = calibration.fit_names
-    corr = np.asarray(calibration.correlation)
-    n = len(names)
-    fig, ax = plt.subplots(figsize=(1.2 * n + 2.4, 1.1 * n + 1.4))
-    im = ax.imshow(corr, vmin=-1.0, vmax=1.0, cmap="RdBu_r")
-    for i in range(n):
-        for j in range(n):
-            ax.text(j, i, f"{corr[i, j]:+.2f}", ha="center", va="center", fontsize=9,
-                    color="white" if abs(corr[i, j]) > 0.6 else "black")
-    ax.set_xticks(range(n))
-    ax.set_xticklabels(names)
-    ax.set_yticks(range(n))
-    ax.set_yticklabels(names)
-    fig.colorbar(im, ax=ax, label="correlation [-]")
-    ax.set_title("Parameter correlation")
-    fig.tight_layout()
-    return fig
+    return _build(correlation_job(calibration))
+
+
+def flux_maps_job(section: Mapping) -> Job:
+    """The inputs of :func:`flux_maps_figure`."""
+    return "flux_maps", {"section": section}
 
 
 def flux_maps_figure(section: Mapping):
@@ -223,33 +142,4 @@ def flux_maps_figure(section: Mapping):
     (mH). One line per value of the other current (up to four, zero among them), its band shaded;
     solid where the data tested the point, dotted where it is extrapolated.
     """
-    i_d, i_q = np.asarray(section["i_d"], float), np.asarray(section["i_q"], float)
-    tested = np.asarray(section["tested"], bool)
-    maps = {k: {p: np.asarray(v[p], dtype=float) for p in ("value", "low", "high")}
-            for k, v in section["maps"].items()}
-    fig, axes = plt.subplots(2, 2, figsize=(9.6, 7.0), sharex="col")
-    for col, (axis, grid, other, flux, ind) in enumerate((("d", i_d, i_q, "psi_d", "L_dd"),
-                                                          ("q", i_q, i_d, "psi_q", "L_qq"))):
-        picks = sorted(set(np.linspace(0, len(other) - 1, 4).round().astype(int)) | {int(np.argmin(np.abs(other)))})
-        for n, k in enumerate(picks[:5]):
-            def line(name):
-                m = maps[name]
-                sel = (slice(None), k) if axis == "d" else (k, slice(None))
-                return m["value"][sel], m["low"][sel], m["high"][sel], tested[sel]
-
-            label = f"i_{'q' if axis == 'd' else 'd'} = {other[k]:.3g} A"
-            for row, name, scale in ((0, flux, 1.0), (1, ind, 1e3)):
-                value, low, high, ok = line(name)
-                ax = axes[row, col]
-                ax.fill_between(grid, low * scale, high * scale, color=f"C{n}", alpha=0.25, lw=0)
-                ax.plot(grid, np.where(ok, value, np.nan) * scale, color=f"C{n}", lw=1.4, label=label)
-                ax.plot(grid, value * scale, color=f"C{n}", lw=0.8, ls=":")
-        axes[0, col].set_ylabel(f"{flux} [Wb]")
-        axes[1, col].set_ylabel(f"{ind} [mH]")
-        axes[1, col].set_xlabel(f"i_{axis} [A]")
-        axes[0, col].legend(fontsize=7)
-        for ax in axes[:, col]:
-            ax.grid(alpha=0.3)
-    fig.suptitle("Flux and incremental inductance with 95 % bands (dotted: extrapolated)")
-    fig.tight_layout()
-    return fig
+    return _build(flux_maps_job(section))

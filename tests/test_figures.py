@@ -1,0 +1,83 @@
+"""The figure workers: the same PNG bytes as drawing in the caller, no JAX in them, no second run of __main__."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivecal import _figures
+
+SRC = str(Path(_figures.__file__).resolve().parents[1])
+
+
+def _jobs() -> list[tuple[str, dict, int]]:
+    rng = np.random.default_rng(3)
+    t = np.arange(200) / 20_000.0
+    segment = {"name": "step", "locked": True, "t": t.tolist(), "v_d": np.full(200, 8.0).tolist(),
+               "v_q": np.zeros(200).tolist(), "i_d": (1 - np.exp(-t / 7e-3) + 0.02 * rng.standard_normal(200)).tolist(),
+               "i_q": (0.02 * rng.standard_normal(200)).tolist(), "i_d_pred": (1 - np.exp(-t / 7e-3)).tolist(),
+               "i_q_pred": np.zeros(200).tolist()}
+    history = np.array([[0.6, 2e-3], [0.5, 3e-3], [0.45, 3.2e-3]])
+    return [
+        ("currents", {"segments": [segment], "title": "a"}, 80),
+        ("residuals", {"segments": [segment], "sigma_hat": 0.02}, 80),
+        ("convergence", {"history": history, "names": ("R", "Ld"), "ref": history[-1], "against_truth": False}, 110),
+        ("correlation", {"names": ("R", "Ld"), "corr": np.array([[1.0, -0.3], [-0.3, 1.0]])}, 80),
+    ]
+
+
+def test_workers_draw_the_same_bytes_as_the_caller():
+    jobs = _jobs()
+    with _figures.FigureRenderer(2) as renderer:
+        pooled = renderer.render_all(jobs)
+    here = [_figures.render(*job) for job in jobs]
+    assert pooled == here
+    assert all(png.startswith(b"\x89PNG") for png in pooled)
+
+
+def test_without_workers_the_caller_draws(monkeypatch):
+    monkeypatch.setenv(_figures.PROCESSES_ENV, "0")
+    renderer = _figures.FigureRenderer()
+    assert renderer.processes == 0
+    with renderer:
+        assert renderer.render_all(_jobs()[:1]) == [_figures.render(*_jobs()[0])]
+    assert renderer._threads == []
+
+
+def test_a_job_the_worker_cannot_draw_raises_in_the_caller():
+    with _figures.FigureRenderer(1) as renderer:
+        job = renderer.submit("no such figure", {}, 80)
+        with pytest.raises(KeyError):
+            job.result()
+        # the worker is still there for the next job
+        assert renderer.render_all(_jobs()[2:3]) == [_figures.render(*_jobs()[2])]
+
+
+def test_the_worker_loads_no_jax():
+    code = "import sys, drivecal._figures; print('jax' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={**os.environ, "PYTHONPATH": SRC})
+    assert out.stdout.strip() == "False"
+
+
+def test_a_script_without_a_main_guard_runs_once(tmp_path):
+    """multiprocessing's spawn would import the caller's script again in each worker; these workers do not."""
+    marker = tmp_path / "runs.txt"
+    script = tmp_path / "user_script.py"
+    script.write_text(textwrap.dedent(f"""
+        import numpy as np
+        from drivecal._figures import FigureRenderer
+        with open({str(marker)!r}, "a") as f:
+            f.write("run\\n")
+        with FigureRenderer(2) as r:
+            png, = r.render_all([("correlation", {{"names": ("R",), "corr": np.ones((1, 1))}}, 50)])
+        assert png.startswith(b"\\x89PNG")
+    """))
+    subprocess.run([sys.executable, str(script)], check=True, env={**os.environ, "PYTHONPATH": SRC}, timeout=120)
+    assert marker.read_text() == "run\n"
