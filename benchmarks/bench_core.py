@@ -35,6 +35,7 @@ import time
 from pathlib import Path
 
 import drivecal as dc  # first: it quiets XLA's C++ log lines before JAX loads
+from drivecal.model import rk4_step  # noqa: E402
 
 import jax
 import jax.numpy as jnp
@@ -56,7 +57,7 @@ def _seed_forward(theta, plan: dc.Plan, fixed: dc.MotorParams):
         v = jnp.asarray(seg.voltages(plan.sample_rate))
 
         def step(x, vk, locked=seg.locked):
-            return dc.forward.rk4_step(x, vk, motor, locked, dt), jnp.stack(x[:2])
+            return rk4_step(x, vk, motor, locked, dt), jnp.stack(x[:2])
 
         _, i = jax.lax.scan(step, (0.0, 0.0, 0.0, 0.0), v)
         out.append(i[:, 0])

@@ -1,0 +1,103 @@
+"""Where the demo's time goes: `drivecal demo --out DIR` taken apart in one process, phase by phase.
+
+Run with PYTHONPATH pointing at the drivecal tree to measure (``bench_workflow.py`` runs it for
+the baseline tree and this one, each on an empty compilation cache). Prints one JSON object:
+
+  phases_s    import (drivecal, JAX, jaxonomy), engine bench (both designs), fit (identifiability,
+              solve), result JSON (diagnostics), figures + HTML (the PNGs and report.html once the
+              result JSON is built), wall (the sum);
+  compile_s   compile and trace seconds by kernel: the drivecal function that asked for it (the
+              innermost drivecal frame of the stack) and JAX's event (backend compile, trace,
+              lowering to MLIR);
+  compiles    the number of XLA compilations (backend), and cache hits.
+
+    PYTHONPATH=src DRIVECAL_JAX_CACHE_DIR=$(mktemp -d) .venv/bin/python benchmarks/demo_phases.py
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import shutil
+import sys
+import tempfile
+import time
+import traceback
+
+T0 = time.perf_counter()
+
+import jax.monitoring as monitoring  # noqa: E402
+
+COMPILE: dict[str, float] = collections.defaultdict(float)
+EVENTS: collections.Counter = collections.Counter()
+WHAT = {"backend_compile_duration": "compile", "jaxpr_trace_duration": "trace",
+        "jaxpr_to_mlir_module_duration": "lower"}
+
+
+def _asker() -> str:
+    """The two innermost drivecal frames (the trace cache's plumbing left out): who asked for the kernel, for what."""
+    frames = [f for f in traceback.extract_stack()
+              if "/drivecal/" in f.filename.replace("\\", "/") and "_lowered_cache" not in f.filename]
+    if not frames:
+        return "(outside drivecal)"
+    return " > ".join(f"{f.filename.replace(chr(92), '/').split('/drivecal/')[-1][:-3]}.{f.name}" for f in frames[-2:])
+
+
+def _on_duration(event: str, seconds: float, **_) -> None:
+    kind = WHAT.get(event.rsplit("/", 1)[-1])
+    if kind is not None:
+        COMPILE[f"{kind} {_asker()}"] += seconds
+        if kind == "compile":
+            EVENTS["compiles"] += 1
+
+
+monitoring.register_event_duration_secs_listener(_on_duration)
+monitoring.register_event_listener(lambda event, **_: EVENTS.update([event.rsplit("/", 1)[-1]]))
+
+
+def main() -> None:
+    phases = {}
+    t = time.perf_counter()
+
+    def mark(name: str) -> None:
+        nonlocal t
+        now = time.perf_counter()
+        phases[name] = phases.get(name, 0.0) + now - t
+        t = now
+
+    import drivecal.bench  # noqa: F401
+    from drivecal.bench import engine_bench
+    from drivecal.demo import _demo as demo
+    from drivecal.fitting import fit
+    from drivecal.physics import DEFAULT_MOTOR
+    from drivecal.plan import default_plan, locked_q_step_plan
+
+    import jaxonomy  # noqa: F401  (the engine's import, paid by every demo)
+    phases["import"] = time.perf_counter() - T0
+    t = time.perf_counter()
+    truth = DEFAULT_MOTOR
+    guess = demo.datasheet_guess(truth)
+    runs = []
+    for label, plan, seed in (("default plan", default_plan(), 1), ("locked q-step only", locked_q_step_plan(), 2)):
+        clean = engine_bench(plan, truth)
+        mark("engine bench")
+        bench = clean.add_noise(0.02, seed)
+        runs.append(demo.DesignRun(label, plan, clean, bench, fit(bench, guess)))
+        mark("fit")
+    result = demo.DemoResult(truth=truth, guess=guess, noise=0.02, seed=1, default=runs[0], poor=runs[1])
+    result.to_dict()
+    mark("result JSON")
+    out = tempfile.mkdtemp(prefix="drivecal-phases-")
+    try:
+        demo.write_demo_outputs(result, out)
+        mark("figures + HTML")
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+    phases["wall"] = time.perf_counter() - T0
+    print(json.dumps({"phases_s": phases,
+                      "compile_s": dict(sorted(COMPILE.items(), key=lambda kv: -kv[1])),
+                      "compiles": EVENTS["compiles"], "cache_hits": EVENTS["cache_hits"]}))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
