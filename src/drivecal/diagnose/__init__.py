@@ -1,7 +1,8 @@
 """After the fit: residual checks, unmodelled bench effects, saturation check, the verdict."""
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
-from ._mismatch import ALPHA, ANGLE_EFFECTS, EFFECTS, MAGNETIC_EFFECTS, Score, effect_signatures, score_test, unmodelled_effects
+from ._mismatch import (ALPHA, ANGLE_EFFECTS, EFFECTS, MAGNETIC_EFFECTS, Score, effect_signatures,
+                        prepare_unmodelled_effects, score_test, unmodelled_effects)
 from ._saturation import LevelEstimate, MIN_LEVEL_RATIO, SaturationCheck, Z_LIMIT, check_saturation
 from ._verdict import SIGMA_RATIO_MAX, residual_checks, verdict
 from ._whiteness import WHITENESS_ALPHA, WHITENESS_LAGS, ljung_box, null_sf, whiteness_rule
@@ -9,4 +10,4 @@ from ._whiteness import WHITENESS_ALPHA, WHITENESS_LAGS, ljung_box, null_sf, whi
 __all__ = ["ALPHA", "ANGLE_EFFECTS", "EFFECTS", "MAGNETIC_EFFECTS", "LevelEstimate", "MIN_LEVEL_RATIO", "SIGMA_RATIO_MAX",
            "SaturationCheck", "Score", "WHITENESS_ALPHA", "WHITENESS_LAGS", "Z_LIMIT", "check_saturation",
            "effect_signatures", "ljung_box",
-           "null_sf", "residual_checks", "score_test", "unmodelled_effects", "verdict", "whiteness_rule"]
+           "null_sf", "prepare_unmodelled_effects", "residual_checks", "score_test", "unmodelled_effects", "verdict", "whiteness_rule"]

@@ -152,6 +152,22 @@ def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment
     return jac[:, : len(fit_names)], columns
 
 
+def prepare_unmodelled_effects(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
+                               effects: tuple[str, ...]) -> None:
+    """Trace and compile now what :func:`unmodelled_effects` will run for these effects; compute nothing else.
+
+    The score tests' sensitivity columns are the largest kernel of a first fit (seconds to
+    compile); ``select_effects`` calls this in a thread while the base fit compiles, so the two
+    compile side by side. The kernel depends on the experiment's shapes and on which parameters
+    are fitted and probed, not on their values: the later call at the fitted motor finds it ready.
+    """
+    plain = tuple(e for e in effects if e not in MAGNETIC_EFFECTS)
+    if plain:
+        # as a fit returns it: the fitted parameters as float64 arrays (a Python float would trace as a weak type)
+        motor = with_experiment_delay(motor.with_vector(tuple(fit_names), motor.vector(tuple(fit_names))), experiment)
+        effect_signatures(motor, tuple(fit_names), model_experiment(experiment, motor, tuple(fit_names)), plain)
+
+
 def unmodelled_effects(
     motor: MotorParams,
     fit_names: tuple[str, ...],

@@ -28,14 +28,16 @@ sensitivity columns its score test probes (``diagnose.EFFECTS``).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
-from typing import Any
+import threading
+from typing import Any, Callable
 
 import numpy as np
 
 from .._stats import chi2_sf
-from ..diagnose import ALPHA, EFFECTS, MAGNETIC_EFFECTS, unmodelled_effects
+from ..diagnose import ALPHA, EFFECTS, MAGNETIC_EFFECTS, prepare_unmodelled_effects, unmodelled_effects
 from ..errors import DrivecalError
 from ..fitting import FitOptions, fit_currents
 from ..identify import assess_identifiability
@@ -253,8 +255,9 @@ def select_effects(
         return EffectSelection(cal, experiment, "none" if effects == "none" else "list", tuple(choices), fits,
                                magnetics)
 
-    cal = fit_currents(experiment, currents, prior, names=names, options=options, source=source)
     candidates = [e for e in EFFECTS if e not in requested and not (fixed_delay and e == "delay")]
+    with _compiled_ahead(prepare_unmodelled_effects, prior, names, experiment, tuple(candidates)):
+        cal = fit_currents(experiment, currents, prior, names=names, options=options, source=source)
     cal, fits, decided, last = _add_effects(experiment, currents, prior, cal, candidates + list(magnetic), options,
                                             source, force=magnetics == "saturating")
     choices = []
@@ -268,6 +271,24 @@ def select_effects(
         else:
             choices.append(_choice(e, cal, decided, last, magnetics))
     return EffectSelection(cal, experiment, "auto", tuple(choices), 1 + fits, magnetics)
+
+
+@contextlib.contextmanager
+def _compiled_ahead(prepare: Callable[..., None], *args: Any):
+    """Run ``prepare(*args)`` (compiling a later step's kernel) in a thread during the block, and wait for it.
+
+    XLA releases the GIL while it compiles: a first fit compiles its base fit and its score tests side by
+    side. A failure in it is left for the later step to meet and report."""
+    def run() -> None:
+        with contextlib.suppress(Exception):  # met and reported by the step that needs the kernel
+            prepare(*args)
+
+    thread = threading.Thread(target=run, name="drivecal-compile-ahead", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        thread.join()
 
 
 def _with_reference_current(prior: MotorParams, currents: np.ndarray) -> MotorParams:
