@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import click
 
 from ..errors import DrivecalError
-from ._common import _check_out, _console, _fmt, _format_option, _load_motor, _motor_option, _Positive
+from ._common import _check_out, _console, _format_option, _load_motor, _motor_option, _Positive
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -17,9 +17,12 @@ if TYPE_CHECKING:
 
 
 def _fit_table(cal: Calibration) -> Table:
+    """The parameter table: each row in its parameter's engineering unit (mΩ, mH, mWb), the estimate and its
+    interval to the SE's second significant digit."""
     from rich.markup import escape
     from rich.table import Table
 
+    from .._units import display_unit, format_value
     from ..physics import UNITS
 
     table = Table(title=f"{cal.source}: {cal.message}, {int(cal.iterations)} LM steps, "
@@ -28,14 +31,19 @@ def _fit_table(cal: Calibration) -> Table:
         justify = "left" if col in ("parameter", "unit", "95 % CI") else "right"
         table.add_column(escape(col), justify=justify, no_wrap=True)
     for i, n in enumerate(cal.names):
-        prior = _fmt(float(getattr(cal.prior, n)))
+        value, se = float(cal.estimate[i]), float(cal.se[i])
+        prior = float(getattr(cal.prior, n))
         if cal.identifiable[i]:
+            scale, unit = display_unit(max(abs(value), se), UNITS[n])
             half = 0.5 * (cal.ci95[i, 1] - cal.ci95[i, 0])
-            table.add_row(n, UNITS[n], prior, _fmt(cal.estimate[i]), f"{cal.se[i]:.3g}",
-                          f"[{_fmt(cal.ci95[i, 0])}, {_fmt(cal.ci95[i, 1])}]", f"±{100 * half / abs(cal.estimate[i]):.3f}")
+            low, high = (format_value(x, scale, se) for x in cal.ci95[i])
+            table.add_row(n, unit or "-", format_value(prior, scale), format_value(value, scale, se),
+                          format_value(se, scale, se), f"[{low}, {high}]",
+                          f"±{format_value(100 * half / abs(value), 1.0, 100 * half / abs(value))}" if value else "-")
         else:
-            table.add_row(n, UNITS[n], prior, f"[dim]{_fmt(cal.estimate[i])} (prior)[/dim]", "-",
-                          "[red]not identifiable[/red]", "-")
+            scale, unit = display_unit(value, UNITS[n])
+            table.add_row(n, unit or "-", format_value(prior, scale),
+                          f"[dim]{format_value(value, scale)} (prior)[/dim]", "-", "[red]not identifiable[/red]", "-")
     return table
 
 
@@ -204,12 +212,16 @@ def _print_spec(spec: dict, console) -> None:
     """The judgement against the motor file's tolerances: the headline, a line per parameter, the advice."""
     from rich.markup import escape
 
+    from .._units import display_unit, format_value
+
     colour = {"pass": "green", "fail": "red"}.get(spec["status"], "yellow")
     console.print(f"specification: [{colour}]{escape(spec['headline'])}[/{colour}]")
     for p in spec["parameters"]:
         low, high = p["ci95"]
-        interval = "not identified" if low is None else f"95 % CI [{_fmt(low)}, {_fmt(high)}]"
-        console.print(f"  {p['name']}: {p['outcome']} ({interval} {p['unit']}; tolerance {escape(p['tolerance'])})")
+        scale, unit = display_unit(p["estimate"] if low is None else max(abs(low), abs(high)), p["unit"])
+        interval = "not identified" if low is None else (
+            f"95 % CI [{format_value(low, scale, 0.5 * (high - low))}, {format_value(high, scale, 0.5 * (high - low))}]")
+        console.print(f"  {p['name']}: {p['outcome']} ({interval} {unit}; tolerance {escape(p['tolerance'])})")
     for line in spec["advice"]:
         console.print(f"  [yellow]{escape(line)}[/yellow]")
 
@@ -231,12 +243,15 @@ def _effects_line(selection) -> str:
     """One line per bench effect: included or not, and the evidence."""
     from rich.markup import escape
 
+    from .._units import format_quantity
+    from ..physics import UNITS
+
     lines = [f"bench effects ({selection.mode}):"]
     for c in selection.choices:
         mark = "[green]fitted[/green]" if c.included else "[dim]not fitted[/dim]"
         evidence = f", {c.test} p = {c.p_value:.2g}" if c.test and c.p_value == c.p_value else ""
-        value = "; ".join(f"{n} = {_fmt(v)} ± {1.96 * s:.2g} (95 %)" for n, (v, s) in c.estimate.items()
-                          if s == s and s > 0)
+        value = "; ".join(f"{n} = {format_quantity(v, UNITS.get(n, '-'), 1.96 * s)} (95 %)"
+                          for n, (v, s) in c.estimate.items() if s == s and s > 0)
         lines.append(f"  {c.effect}: {mark} ({escape(c.how)}{evidence})" + (f": {escape(value)}" if value else ""))
     return "\n".join(lines)
 
