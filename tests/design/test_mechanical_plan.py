@@ -18,10 +18,12 @@ import pytest
 
 import drivecal as dc
 from drivecal import design as autoplan
+from drivecal._units import display_unit
 from drivecal.cli import main
 from drivecal.design import MAX_FRICTION_SAMPLES, friction_samples, mechanical_segments
 from drivecal.fitting import fit_currents
 from drivecal.identify import assess_identifiability
+from drivecal.physics import UNITS
 from drivecal.plan import plan_to_dict
 
 NOISE = 0.02  # A
@@ -131,9 +133,11 @@ def test_design_prints_the_mechanical_intervals(planned, capsys):
     assert "rank 7/7" in text
     rows = {cells[0]: cells for cells in ([c.strip() for c in line.split("\u2502")[1:-1]]
                                           for line in text.splitlines()) if cells}
-    for name, unit in (("J", "kg*m^2"), ("B", "N*m*s"), ("T_coulomb", "N*m")):
+    for name, unit in (("J", "kg·m²"), ("B", "N·m·s"), ("T_coulomb", "mN·m")):  # engineering units
         _, shown_unit, nominal, half, relative, verdict = rows[name]
-        assert shown_unit == unit and float(nominal) == float(getattr(TRUE, name)) and verdict == "yes", rows[name]
+        scale, _ = display_unit(float(getattr(TRUE, name)), UNITS[name])
+        assert shown_unit == unit and verdict == "yes", rows[name]
+        assert float(nominal) * scale == pytest.approx(float(getattr(TRUE, name)), rel=1e-3), rows[name]
         assert 0 < float(half) and 0 < float(relative) < 50, rows[name]
 
 

@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from drivecal._units import format_quantity
 from drivecal.cli import main
 from drivecal.errors import DrivecalError
 from drivecal.identify import Identifiability
@@ -182,7 +183,10 @@ def test_gains_command_at_an_operating_point(saved, saturating, capsys):
     assert main(["gains", str(saved), "--bandwidth", "1000", "--operating-point", "-10,20"]) == 0
     out = " ".join(capsys.readouterr().out.split())  # rich wraps the titles
     assert "L_qq (q) [H] at the operating point i_d = -10 A, i_q = 20 A" in out
-    assert f"L_dd = {l_dd:.6g} H" in out and f"(Lq = {float(SATURATING.Lq):.6g} at 0 A)" in out
+    # in engineering units (mH), as every table a person reads
+    assert f"L_dd = {format_quantity(l_dd, 'H')}" in out
+    assert f"(Lq = {format_quantity(SATURATING.Lq, 'H')} at 0 A)" in out
+    assert format_quantity(l_dd, "H").endswith(" mH")
     assert "…" not in out  # no column cut short
 
 

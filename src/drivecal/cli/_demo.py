@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ._common import _check_out, _console, _fmt, _Positive
+from ._common import _check_out, _console, _Positive
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -21,6 +21,7 @@ def _design_table(run: DesignRun, truth: MotorParams) -> Table:
     from rich.markup import escape
     from rich.table import Table
 
+    from .._units import display_unit, format_value
     from ..physics import UNITS
 
     cal = run.calibration
@@ -33,13 +34,16 @@ def _design_table(run: DesignRun, truth: MotorParams) -> Table:
         table.add_column(escape(col), justify=justify, no_wrap=True)
     for i, n in enumerate(cal.names):
         e = errors[n]
-        if cal.identifiable[i]:
-            ci = f"[{_fmt(cal.ci95[i, 0])}, {_fmt(cal.ci95[i, 1])}]"
-            est, err_se = _fmt(cal.estimate[i]), f"{e['error_in_se']:+.2f}"
+        value, se = float(cal.estimate[i]), float(cal.se[i])
+        if cal.identifiable[i]:  # each row in its engineering unit, to the SE's second significant digit
+            scale, unit = display_unit(max(abs(value), se), UNITS[n])
+            ci = f"[{format_value(cal.ci95[i, 0], scale, se)}, {format_value(cal.ci95[i, 1], scale, se)}]"
+            est, err_se = format_value(value, scale, se), f"{e['error_in_se']:+.2f}"
         else:
+            scale, unit = display_unit(value, UNITS[n])
             ci = "[red]not identifiable[/red]"
-            est, err_se = f"[dim]{_fmt(cal.estimate[i])} (prior)[/dim]", "-"
-        table.add_row(n, UNITS[n], _fmt(e["true"]), _fmt(cal.initial[i]), est,
+            est, err_se = f"[dim]{format_value(value, scale)} (prior)[/dim]", "-"
+        table.add_row(n, unit or "-", format_value(e["true"], scale), format_value(cal.initial[i], scale), est,
                       f"{e['error_percent']:+.4f}", err_se, ci)
     return table
 

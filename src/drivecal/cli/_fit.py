@@ -193,7 +193,7 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
         colour = "red" if "saturates" in line else "green"
         console.print(f"saturation check: [{colour}]{escape(line)}[/{colour}]")
     if payload.get("spec"):
-        _print_spec(payload["spec"], console)
+        _print_spec(payload["spec"], payload["parameters"], console)
     if out_dir is not None:
         console.print(f"wrote {len(written)} files to {out_dir}/: " + ", ".join(p.name for p in written))
     return exit_code
@@ -208,7 +208,7 @@ def _exit_code(status, spec) -> int:
     return Spec(spec["status"]).exit_code
 
 
-def _print_spec(spec: dict, console) -> None:
+def _print_spec(spec: dict, parameters: dict, console) -> None:
     """The judgement against the motor file's tolerances: the headline, a line per parameter, the advice."""
     from rich.markup import escape
 
@@ -219,8 +219,9 @@ def _print_spec(spec: dict, console) -> None:
     for p in spec["parameters"]:
         low, high = p["ci95"]
         scale, unit = display_unit(p["estimate"] if low is None else max(abs(low), abs(high)), p["unit"])
+        se = parameters.get(p["name"], {}).get("se")  # the digits of the fit table
         interval = "not identified" if low is None else (
-            f"95 % CI [{format_value(low, scale, 0.5 * (high - low))}, {format_value(high, scale, 0.5 * (high - low))}]")
+            f"95 % CI [{format_value(low, scale, se)}, {format_value(high, scale, se)}]")
         console.print(f"  {p['name']}: {p['outcome']} ({interval} {unit}; tolerance {escape(p['tolerance'])})")
     for line in spec["advice"]:
         console.print(f"  [yellow]{escape(line)}[/yellow]")

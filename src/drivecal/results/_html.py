@@ -7,6 +7,8 @@ import html as _html
 import math
 from typing import Any, Mapping
 
+from .._units import display_unit, format_value
+
 
 def escape(x: Any) -> str:
     return _html.escape(str(x))
@@ -19,20 +21,25 @@ def format_number(x: Any, spec: str = ".6g") -> str:
 
 
 def summary_html(fit: Mapping[str, Any]) -> str:
-    """The summary table of one fit: estimate, SE, 95 % CI, relative CI, identifiable."""
+    """The summary table of one fit: estimate, SE, 95 % CI, relative CI, identifiable; each parameter in its
+    engineering unit (mΩ, mH, mWb), the estimate and its interval to the SE's second significant digit."""
     rows = []
     for name, p in fit["parameters"].items():
         ok = p["identifiable"]
         ci = p["ci95"] or [None, None]
-        est = p["estimate"]
+        est, se = p["estimate"], p["se"]
+        se = se if ok and isinstance(se, (int, float)) and math.isfinite(se) and se > 0 else None
+        scale, unit = display_unit(max(abs(est or 0.0), se or 0.0), p["unit"])
         rel = 50.0 * (ci[1] - ci[0]) / abs(est) if ok and None not in ci and est else None
         ident = "yes" if ok else f"NO: {p.get('reason', 'not identifiable')} (held at prior)"
+        low, high = ("-" if x is None else format_value(x, scale, se) for x in ci)
         rows.append(
-            f'<tr class="{"yes" if ok else "no"}"><td class="l">{escape(name)}</td><td class="l">{escape(p["unit"])}</td>'
-            f"<td>{format_number(est)}</td><td>{format_number(p['se'], '.3g')}</td><td>{format_number(ci[0])}</td><td>{format_number(ci[1])}</td>"
-            f'<td>{format_number(rel, ".3g")}</td><td class="l">{escape(ident)}</td></tr>'
+            f'<tr class="{"yes" if ok else "no"}"><td class="l">{escape(name)}</td><td class="l">{escape(unit or "-")}'
+            f"</td><td>{'-' if est is None else format_value(est, scale, se)}</td><td>{'-' if se is None else format_value(se, scale, se)}</td>"
+            f"<td>{low}</td><td>{high}</td>"
+            f'<td>{"-" if rel is None else format_value(rel, 1.0, rel)}</td><td class="l">{escape(ident)}</td></tr>'
         )
-    head = ("<tr><th class='l'>parameter</th><th class='l'>SI unit</th><th>estimate [SI unit]</th>"
-            "<th>SE [SI unit]</th><th>95 % CI low [SI unit]</th><th>95 % CI high [SI unit]</th>"
+    head = ("<tr><th class='l'>parameter</th><th class='l'>unit</th><th>estimate [unit]</th>"
+            "<th>SE [unit]</th><th>95 % CI low [unit]</th><th>95 % CI high [unit]</th>"
             "<th>relative CI half-width [%]</th><th class='l'>identifiable</th></tr>")
     return f'<table class="summary">{head}{"".join(rows)}</table>'
