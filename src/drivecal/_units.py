@@ -13,7 +13,7 @@ import math
 import re
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, NamedTuple
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, ValidationError
 
@@ -200,6 +200,28 @@ def format_value(value: float, scale: float = 1.0, se: float | None = None) -> s
     return f"{value / scale:.{decimals}f}"
 
 
+class EstimateCells(NamedTuple):
+    """An estimate's cells in a table row, all in one engineering unit (see :func:`estimate_cells`)."""
+
+    scale: float  #: SI per shown unit, for the row's other numbers (``format_value(prior, cells.scale)``)
+    unit: str  #: the unit as shown, e.g. ``"mH"`` (``"-"`` for a plain number)
+    estimate: str
+    se: str  #: two significant digits; ``"-"`` without an SE
+    ci: tuple[str, ...]  #: the interval's ends, to the estimate's digits
+
+
+def estimate_cells(value: float, unit: str, se: float | None = None, ci: tuple = ()) -> EstimateCells:
+    """An estimate, its SE and interval ends as a table row shows them (the fit table, ``print(cal)``, the HTML
+    summary): one prefix for the row, chosen by the larger of the value and the SE, and every number to the
+    SE's second significant digit. Without a usable SE (a parameter held at its prior): four significant digits."""
+    usable = se is not None and math.isfinite(float(se)) and float(se) > 0.0
+    se = float(se) if usable else None
+    scale, shown = display_unit(max(abs(float(value)), se or 0.0), unit)
+    return EstimateCells(scale, shown or "-", format_value(value, scale, se),
+                         "-" if se is None else format_value(se, scale, se),
+                         tuple("-" if x is None else format_value(x, scale, se) for x in ci))
+
+
 def format_quantity(value: float, unit: str, se: float | None = None) -> str:
     """``value`` (SI ``unit``) for a person: an SI prefix that puts it in [1, 1000), digits matching ``se``.
 
@@ -219,9 +241,6 @@ def format_quantity(value: float, unit: str, se: float | None = None) -> str:
     value = float(value)
     if not math.isfinite(value):
         return f"{value} {unit}".strip()
-    usable = se is not None and math.isfinite(float(se)) and float(se) > 0.0
-    scale, shown = display_unit(max(abs(value), float(se) if usable else 0.0), unit)
-    suffix = f" {shown}" if shown else ""
-    if not usable:
-        return f"{format_value(value, scale)}{suffix}"
-    return f"{format_value(value, scale, se)} ± {format_value(se, scale, se)}{suffix}"
+    cells = estimate_cells(value, unit, se)
+    suffix = "" if cells.unit == "-" else f" {cells.unit}"
+    return f"{cells.estimate}{'' if cells.se == '-' else ' ± ' + cells.se}{suffix}"

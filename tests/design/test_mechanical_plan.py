@@ -18,12 +18,10 @@ import pytest
 
 import drivecal as dc
 from drivecal import design as autoplan
-from drivecal._units import display_unit
 from drivecal.cli import main
 from drivecal.design import MAX_FRICTION_SAMPLES, friction_samples, mechanical_segments
 from drivecal.fitting import fit_currents
 from drivecal.identify import assess_identifiability
-from drivecal.physics import UNITS
 from drivecal.plan import plan_to_dict
 
 NOISE = 0.02  # A
@@ -133,9 +131,9 @@ def test_design_prints_the_mechanical_intervals(planned, capsys):
     assert "rank 7/7" in text
     rows = {cells[0]: cells for cells in ([c.strip() for c in line.split("\u2502")[1:-1]]
                                           for line in text.splitlines()) if cells}
-    for name, unit in (("J", "kg·m²"), ("B", "N·m·s"), ("T_coulomb", "mN·m")):  # engineering units
+    # engineering units: kg·m² and N·m·s as written, the Coulomb torque in mN·m
+    for name, unit, scale in (("J", "kg·m²", 1.0), ("B", "N·m·s", 1.0), ("T_coulomb", "mN·m", 1e-3)):
         _, shown_unit, nominal, half, relative, verdict = rows[name]
-        scale, _ = display_unit(float(getattr(TRUE, name)), UNITS[name])
         assert shown_unit == unit and verdict == "yes", rows[name]
         assert float(nominal) * scale == pytest.approx(float(getattr(TRUE, name)), rel=1e-3), rows[name]
         assert 0 < float(half) and 0 < float(relative) < 50, rows[name]

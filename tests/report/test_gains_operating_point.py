@@ -13,7 +13,6 @@ import math
 import numpy as np
 import pytest
 
-from drivecal._units import format_quantity
 from drivecal.cli import main
 from drivecal.errors import DrivecalError
 from drivecal.identify import Identifiability
@@ -184,9 +183,7 @@ def test_gains_command_at_an_operating_point(saved, saturating, capsys):
     out = " ".join(capsys.readouterr().out.split())  # rich wraps the titles
     assert "L_qq (q) [H] at the operating point i_d = -10 A, i_q = 20 A" in out
     # in engineering units (mH), as every table a person reads
-    assert f"L_dd = {format_quantity(l_dd, 'H')}" in out
-    assert f"(Lq = {format_quantity(SATURATING.Lq, 'H')} at 0 A)" in out
-    assert format_quantity(l_dd, "H").endswith(" mH")
+    assert f"L_dd = {l_dd * 1e3:.4g} mH" in out and f"(Lq = {float(SATURATING.Lq) * 1e3:.4g} mH at 0 A)" in out
     assert "…" not in out  # no column cut short
 
 

@@ -21,7 +21,7 @@ def _design_table(run: DesignRun, truth: MotorParams) -> Table:
     from rich.markup import escape
     from rich.table import Table
 
-    from .._units import display_unit, format_value
+    from .._units import estimate_cells, format_value
     from ..physics import UNITS
 
     cal = run.calibration
@@ -34,17 +34,14 @@ def _design_table(run: DesignRun, truth: MotorParams) -> Table:
         table.add_column(escape(col), justify=justify, no_wrap=True)
     for i, n in enumerate(cal.names):
         e = errors[n]
-        value, se = float(cal.estimate[i]), float(cal.se[i])
         if cal.identifiable[i]:  # each row in its engineering unit, to the SE's second significant digit
-            scale, unit = display_unit(max(abs(value), se), UNITS[n])
-            ci = f"[{format_value(cal.ci95[i, 0], scale, se)}, {format_value(cal.ci95[i, 1], scale, se)}]"
-            est, err_se = format_value(value, scale, se), f"{e['error_in_se']:+.2f}"
+            cells = estimate_cells(float(cal.estimate[i]), UNITS[n], float(cal.se[i]), tuple(cal.ci95[i]))
+            ci, est, err_se = f"[{cells.ci[0]}, {cells.ci[1]}]", cells.estimate, f"{e['error_in_se']:+.2f}"
         else:
-            scale, unit = display_unit(value, UNITS[n])
-            ci = "[red]not identifiable[/red]"
-            est, err_se = f"[dim]{format_value(value, scale)} (prior)[/dim]", "-"
-        table.add_row(n, unit or "-", format_value(e["true"], scale), format_value(cal.initial[i], scale), est,
-                      f"{e['error_percent']:+.4f}", err_se, ci)
+            cells = estimate_cells(float(cal.estimate[i]), UNITS[n])
+            ci, est, err_se = "[red]not identifiable[/red]", f"[dim]{cells.estimate} (prior)[/dim]", "-"
+        table.add_row(n, cells.unit, format_value(e["true"], cells.scale), format_value(cal.initial[i], cells.scale),
+                      est, f"{e['error_percent']:+.4f}", err_se, ci)
     return table
 
 

@@ -22,7 +22,7 @@ def _fit_table(cal: Calibration) -> Table:
     from rich.markup import escape
     from rich.table import Table
 
-    from .._units import display_unit, format_value
+    from .._units import estimate_cells, format_value
     from ..physics import UNITS
 
     table = Table(title=f"{cal.source}: {cal.message}, {int(cal.iterations)} LM steps, "
@@ -31,19 +31,17 @@ def _fit_table(cal: Calibration) -> Table:
         justify = "left" if col in ("parameter", "unit", "95 % CI") else "right"
         table.add_column(escape(col), justify=justify, no_wrap=True)
     for i, n in enumerate(cal.names):
-        value, se = float(cal.estimate[i]), float(cal.se[i])
-        prior = float(getattr(cal.prior, n))
+        value, prior = float(cal.estimate[i]), float(getattr(cal.prior, n))
         if cal.identifiable[i]:
-            scale, unit = display_unit(max(abs(value), se), UNITS[n])
+            cells = estimate_cells(value, UNITS[n], float(cal.se[i]), tuple(cal.ci95[i]))
             half = 0.5 * (cal.ci95[i, 1] - cal.ci95[i, 0])
-            low, high = (format_value(x, scale, se) for x in cal.ci95[i])
-            table.add_row(n, unit or "-", format_value(prior, scale), format_value(value, scale, se),
-                          format_value(se, scale, se), f"[{low}, {high}]",
+            table.add_row(n, cells.unit, format_value(prior, cells.scale), cells.estimate, cells.se,
+                          f"[{cells.ci[0]}, {cells.ci[1]}]",
                           f"±{format_value(100 * half / abs(value), 1.0, 100 * half / abs(value))}" if value else "-")
         else:
-            scale, unit = display_unit(value, UNITS[n])
-            table.add_row(n, unit or "-", format_value(prior, scale),
-                          f"[dim]{format_value(value, scale)} (prior)[/dim]", "-", "[red]not identifiable[/red]", "-")
+            cells = estimate_cells(value, UNITS[n])
+            table.add_row(n, cells.unit, format_value(prior, cells.scale), f"[dim]{cells.estimate} (prior)[/dim]",
+                          "-", "[red]not identifiable[/red]", "-")
     return table
 
 

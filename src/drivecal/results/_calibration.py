@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._stats import t_ppf
-from .._units import format_quantity
+from .._units import estimate_cells, format_quantity, format_value
 from ..identify import Identifiability
 from ..physics import ADDITIVE_SCALE, EXPONENTS, FIXED, MAGNETIC, MECHANICAL, NUISANCE, UNITS, MotorParams
 from .._status import solver_message
@@ -364,20 +364,17 @@ class Calibration:
     def _parameter_lines(self) -> list[str]:
         """One line per parameter in its engineering unit (mΩ, mH, mWb): estimate, SE and 95 % CI to the SE's
         second significant digit."""
-        from .._units import display_unit, format_value
-
         rows = [("name", "unit", "estimate", "std err", "95% CI", "rel. CI", "identifiable")]
         for i, n in enumerate(self.names):
             value, se = float(self.estimate[i]), float(self.se[i])
             if self.identifiable[i]:
-                scale, unit = display_unit(max(abs(value), se), UNITS[n])
-                low, high = (format_value(x, scale, se) for x in self.ci95[i])
+                c = estimate_cells(value, UNITS[n], se, tuple(self.ci95[i]))
                 rel = 100.0 * self.t_factor * se / abs(value) if value else math.nan
-                rows.append((n, unit or "-", format_value(value, scale, se), format_value(se, scale, se),
-                             f"[{low}, {high}]", "-" if rel != rel else f"+/-{format_value(rel, 1.0, rel)} %", "yes"))
+                rows.append((n, c.unit, c.estimate, c.se, f"[{c.ci[0]}, {c.ci[1]}]",
+                             "-" if rel != rel else f"+/-{format_value(rel, 1.0, rel)} %", "yes"))
             else:
-                scale, unit = display_unit(value, UNITS[n])
-                rows.append((n, unit or "-", format_value(value, scale), "-", "held at prior", "-", "NO"))
+                c = estimate_cells(value, UNITS[n])
+                rows.append((n, c.unit, c.estimate, "-", "held at prior", "-", "NO"))
         widths = [max(len(r[k]) for r in rows) for k in range(6)]
         return [f"    {r[0]:<{widths[0]}} {r[1]:<{widths[1]}} {r[2]:>{widths[2]}} {r[3]:>{widths[3]}} "
                 f"{r[4]:>{widths[4]}} {r[5]:>{widths[5]}}  {r[6]}" for r in rows]

@@ -7,7 +7,7 @@ import html as _html
 import math
 from typing import Any, Mapping
 
-from .._units import display_unit, format_value
+from .._units import estimate_cells, format_value
 
 
 def escape(x: Any) -> str:
@@ -27,16 +27,14 @@ def summary_html(fit: Mapping[str, Any]) -> str:
     for name, p in fit["parameters"].items():
         ok = p["identifiable"]
         ci = p["ci95"] or [None, None]
-        est, se = p["estimate"], p["se"]
-        se = se if ok and isinstance(se, (int, float)) and math.isfinite(se) and se > 0 else None
-        scale, unit = display_unit(max(abs(est or 0.0), se or 0.0), p["unit"])
+        est = p["estimate"]
+        cells = estimate_cells(est if est is not None else float("nan"), p["unit"], p["se"] if ok else None,
+                               tuple(ci))
         rel = 50.0 * (ci[1] - ci[0]) / abs(est) if ok and None not in ci and est else None
         ident = "yes" if ok else f"NO: {p.get('reason', 'not identifiable')} (held at prior)"
-        low, high = ("-" if x is None else format_value(x, scale, se) for x in ci)
         rows.append(
-            f'<tr class="{"yes" if ok else "no"}"><td class="l">{escape(name)}</td><td class="l">{escape(unit or "-")}'
-            f"</td><td>{'-' if est is None else format_value(est, scale, se)}</td><td>{'-' if se is None else format_value(se, scale, se)}</td>"
-            f"<td>{low}</td><td>{high}</td>"
+            f'<tr class="{"yes" if ok else "no"}"><td class="l">{escape(name)}</td><td class="l">{escape(cells.unit)}'
+            f"</td><td>{cells.estimate}</td><td>{cells.se}</td><td>{cells.ci[0]}</td><td>{cells.ci[1]}</td>"
             f'<td>{"-" if rel is None else format_value(rel, 1.0, rel)}</td><td class="l">{escape(ident)}</td></tr>'
         )
     head = ("<tr><th class='l'>parameter</th><th class='l'>unit</th><th>estimate [unit]</th>"
