@@ -52,6 +52,7 @@ def test_the_traction_motors_milliohms_keep_the_digits_of_their_interval():
     (0.02, "A", 1e-3, "mA"),
     (0.0, "A", 1.0, "A"),  # no reference: no prefix
     (0.0012, "kg*m^2", 1.0, "kg·m²"),  # no prefix form
+    (8e-5, "N*m*s", 1e-6, "µN·m·s"),  # the viscous friction
     (1.5, "samples", 1.0, "samples"),
     (4.0, "-", 1.0, ""),
 ])

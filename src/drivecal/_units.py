@@ -154,9 +154,10 @@ def read_toml(path: str | Path) -> dict:
 
 
 #: Display units (what a person reads: mΩ, mH, mWb) of the SI units in tables; the JSON stays SI.
-_DISPLAY = {"ohm": "Ω", "H": "H", "Wb": "Wb", "V": "V", "A": "A", "s": "s", "Hz": "Hz", "N*m": "N·m"}
+_DISPLAY = {"ohm": "Ω", "H": "H", "Wb": "Wb", "V": "V", "A": "A", "s": "s", "Hz": "Hz", "N*m": "N·m",
+            "N*m*s": "N·m·s"}
 #: Units shown as written, without a prefix (a prefix on kg·m², rad/s or a controller gain would mislead).
-_PLAIN = {"N*m*s": "N·m·s", "kg*m^2": "kg·m²", "V/(A*s)": "V/(A·s)", "-": ""}
+_PLAIN = {"kg*m^2": "kg·m²", "V/(A*s)": "V/(A·s)", "-": ""}
 _DISPLAY_PREFIXES = ((1e9, "G"), (1e6, "M"), (1e3, "k"), (1.0, ""), (1e-3, "m"), (1e-6, "µ"), (1e-9, "n"))
 
 

@@ -131,8 +131,8 @@ def test_design_prints_the_mechanical_intervals(planned, capsys):
     assert "rank 7/7" in text
     rows = {cells[0]: cells for cells in ([c.strip() for c in line.split("\u2502")[1:-1]]
                                           for line in text.splitlines()) if cells}
-    # engineering units: kg·m² and N·m·s as written, the Coulomb torque in mN·m
-    for name, unit, scale in (("J", "kg·m²", 1.0), ("B", "N·m·s", 1.0), ("T_coulomb", "mN·m", 1e-3)):
+    # engineering units: kg·m² as written, the friction in µN·m·s, the Coulomb torque in mN·m
+    for name, unit, scale in (("J", "kg·m²", 1.0), ("B", "µN·m·s", 1e-6), ("T_coulomb", "mN·m", 1e-3)):
         _, shown_unit, nominal, half, relative, verdict = rows[name]
         assert shown_unit == unit and verdict == "yes", rows[name]
         assert float(nominal) * scale == pytest.approx(float(getattr(TRUE, name)), rel=1e-3), rows[name]
