@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from drivecal._units import format_quantity
+from drivecal._units import display_unit, format_quantity, format_value
 
 
 @pytest.mark.parametrize("value, unit, se, text", [
@@ -32,3 +32,39 @@ def test_format_quantity_without_a_usable_se():
     assert format_quantity(0.45, "ohm", math.nan) == "450 mΩ"
     assert format_quantity(0.45, "ohm", 0.0) == "450 mΩ"
     assert format_quantity(math.nan, "ohm") == "nan ohm"
+
+
+def test_the_traction_motors_milliohms_keep_the_digits_of_their_interval():
+    """0.00429944 ohm ± 2.57e-08: milliohms, down to the SE's second significant digit (2.6e-5 mΩ)."""
+    assert format_quantity(0.00429944, "ohm", 2.57e-08) == "4.299440 ± 0.000026 mΩ"
+    assert format_quantity(0.000450932, "H", 3.1e-7) == "450.93 ± 0.31 µH"
+    assert format_quantity(0.000450932, "H") == "450.9 µH"
+
+
+@pytest.mark.parametrize("reference, unit, scale, shown", [
+    (0.0032, "H", 1e-3, "mH"),
+    (0.000451, "H", 1e-6, "µH"),
+    (0.0043, "ohm", 1e-3, "mΩ"),
+    (5.8, "ohm", 1.0, "Ω"),
+    (0.0533, "Wb", 1e-3, "mWb"),
+    (627.0, "V", 1.0, "V"),
+    (20e3, "Hz", 1e3, "kHz"),
+    (0.02, "A", 1e-3, "mA"),
+    (0.0, "A", 1.0, "A"),  # no reference: no prefix
+    (0.0012, "kg*m^2", 1.0, "kg·m²"),  # no prefix form
+    (8e-5, "N*m*s", 1e-6, "µN·m·s"),  # the viscous friction
+    (1.5, "samples", 1.0, "samples"),
+    (4.0, "-", 1.0, ""),
+])
+def test_display_unit_picks_the_prefix_that_puts_the_reference_in_1_to_1000(reference, unit, scale, shown):
+    assert display_unit(reference, unit) == (scale, shown)
+
+
+def test_format_value_is_the_number_in_the_columns_unit():
+    scale = display_unit(0.0032, "H")[0]  # a column in mH
+    assert format_value(0.0032003, scale, 5.7e-7) == "3.20030"  # to the SE's second significant digit
+    assert format_value(5.7e-7, scale, 5.7e-7) == "0.00057"  # the SE itself: two significant digits
+    assert format_value(0.0058, scale) == "5.8"  # no SE: four significant digits at most
+    assert format_value(0.0032, scale, 0.0021) == "3.2"  # an SE of 2.1 mH: one decimal
+    assert format_value(0.0032, scale, 0.021) == "3"  # an SE of 21 mH: no decimals
+    assert format_value(math.nan, scale) == "-"

@@ -13,7 +13,7 @@ import math
 import re
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, NamedTuple
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, ValidationError
 
@@ -154,10 +154,73 @@ def read_toml(path: str | Path) -> dict:
 
 
 #: Display units (what a person reads: mΩ, mH, mWb) of the SI units in tables; the JSON stays SI.
-_DISPLAY = {"ohm": "Ω", "H": "H", "Wb": "Wb", "V": "V", "A": "A", "s": "s", "Hz": "Hz", "N*m": "N·m"}
-#: Units shown as written, without a prefix (a prefix on kg·m² or rad/s would mislead).
-_PLAIN = {"N*m*s": "N·m·s", "kg*m^2": "kg·m²", "-": ""}
+_DISPLAY = {"ohm": "Ω", "H": "H", "Wb": "Wb", "V": "V", "A": "A", "s": "s", "Hz": "Hz", "N*m": "N·m",
+            "N*m*s": "N·m·s"}
+#: Units shown as written, without a prefix (a prefix on kg·m², rad/s or a controller gain would mislead).
+_PLAIN = {"kg*m^2": "kg·m²", "V/(A*s)": "V/(A·s)", "-": ""}
 _DISPLAY_PREFIXES = ((1e9, "G"), (1e6, "M"), (1e3, "k"), (1.0, ""), (1e-3, "m"), (1e-6, "µ"), (1e-9, "n"))
+
+
+def display_unit(reference: float, unit: str) -> tuple[float, str]:
+    """The scale and the unit as shown for quantities of about ``reference`` (SI ``unit``).
+
+    The SI prefix puts ``|reference|`` in [1, 1000): ``display_unit(0.0032, "H")`` is
+    ``(1e-3, "mH")``. A table column (or a row of a parameter table) takes one
+    reference, e.g. the estimate, so every number in it shares the prefix.
+    Units without a prefix form (``-``, ``samples``, ``1/K``, ``kg*m^2``) keep
+    scale 1 and are shown as written (``-`` as ``""``).
+    """
+    shown = _DISPLAY.get(unit)
+    if shown is None:
+        return 1.0, _PLAIN.get(unit, unit)
+    ref = abs(float(reference))
+    if ref == 0.0 or not math.isfinite(ref):
+        return 1.0, shown
+    for scale, prefix in _DISPLAY_PREFIXES:
+        if ref >= scale * 0.9995:
+            return scale, prefix + shown
+    return scale, prefix + shown
+
+
+def format_value(value: float, scale: float = 1.0, se: float | None = None) -> str:
+    """The number ``value / scale`` alone (the unit is the column's), with the digits ``se`` supports.
+
+    With a standard error (or another uncertainty to match, in the same SI
+    unit), the digits go down to its second significant digit:
+    ``format_value(0.0032003, 1e-3, 5.7e-7)`` is ``"3.20030"``, and an SE
+    formatted against itself shows two significant digits
+    (``format_value(5.7e-7, 1e-3, 5.7e-7)`` is ``"0.00057"``). Without one
+    (or a zero or non-finite one), four significant digits. A non-finite value is ``"-"``.
+    """
+    value = float(value)
+    if not math.isfinite(value):
+        return "-"
+    if se is None or not math.isfinite(float(se)) or float(se) <= 0.0:
+        return f"{value / scale:.4g}"
+    decimals = max(0, 1 - math.floor(math.log10(float(se) / scale)))
+    return f"{value / scale:.{decimals}f}"
+
+
+class EstimateCells(NamedTuple):
+    """An estimate's cells in a table row, all in one engineering unit (see :func:`estimate_cells`)."""
+
+    scale: float  #: SI per shown unit, for the row's other numbers (``format_value(prior, cells.scale)``)
+    unit: str  #: the unit as shown, e.g. ``"mH"`` (``"-"`` for a plain number)
+    estimate: str
+    se: str  #: two significant digits; ``"-"`` without an SE
+    ci: tuple[str, ...]  #: the interval's ends, to the estimate's digits
+
+
+def estimate_cells(value: float, unit: str, se: float | None = None, ci: tuple = ()) -> EstimateCells:
+    """An estimate, its SE and interval ends as a table row shows them (the fit table, ``print(cal)``, the HTML
+    summary): one prefix for the row, chosen by the larger of the value and the SE, and every number to the
+    SE's second significant digit. Without a usable SE (a parameter held at its prior): four significant digits."""
+    usable = se is not None and math.isfinite(float(se)) and float(se) > 0.0
+    se = float(se) if usable else None
+    scale, shown = display_unit(max(abs(float(value)), se or 0.0), unit)
+    return EstimateCells(scale, shown or "-", format_value(value, scale, se),
+                         "-" if se is None else format_value(se, scale, se),
+                         tuple("-" if x is None else format_value(x, scale, se) for x in ci))
 
 
 def format_quantity(value: float, unit: str, se: float | None = None) -> str:
@@ -166,31 +229,19 @@ def format_quantity(value: float, unit: str, se: float | None = None) -> str:
     With a standard error, the value keeps the digits down to the SE's second
     significant digit and is followed by ``± se`` in the same prefix, e.g.
     ``format_quantity(0.0032003, "H", 5.7e-7)`` is ``"3.20030 ± 0.00057 mH"``;
-    without one, four significant digits (``"3.2 mH"``). Units without a
+    without one, four significant digits (``"3.2 mH"``). The prefix follows the
+    larger of the value and the SE (``"0.0 ± 2.0 mA"``). Units without a
     prefix form (``-``, ``samples``, ``1/K``, ``degC``, ``rad``) are printed as given.
 
     Args:
         value: the quantity in SI units.
         unit: its SI unit as in :data:`drivecal.physics.UNITS`.
-        se: its standard error (same unit), or None.
+        se: its standard error (same unit; or another uncertainty to print after ``±``, e.g. a
+            95 % half-width), or None.
     """
     value = float(value)
     if not math.isfinite(value):
         return f"{value} {unit}".strip()
-    shown = _DISPLAY.get(unit)
-    scale, prefix = 1.0, ""
-    if shown is not None:
-        ref = abs(value) if value != 0.0 else abs(se or 0.0)
-        for scale, prefix in _DISPLAY_PREFIXES:
-            if ref >= scale * 0.9995:
-                break
-        if ref == 0.0:
-            scale, prefix = 1.0, ""
-    else:
-        shown = _PLAIN.get(unit, unit)
-    suffix = f" {prefix}{shown}" if shown or prefix else ""
-    if se is None or not math.isfinite(float(se)) or float(se) <= 0.0:
-        return f"{value / scale:.4g}{suffix}"
-    s = float(se) / scale
-    decimals = max(0, 1 - math.floor(math.log10(s)))
-    return f"{value / scale:.{decimals}f} ± {s:.{decimals}f}{suffix}"
+    cells = estimate_cells(value, unit, se)
+    suffix = "" if cells.unit == "-" else f" {cells.unit}"
+    return f"{cells.estimate}{'' if cells.se == '-' else ' ± ' + cells.se}{suffix}"

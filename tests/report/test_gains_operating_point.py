@@ -182,7 +182,8 @@ def test_gains_command_at_an_operating_point(saved, saturating, capsys):
     assert main(["gains", str(saved), "--bandwidth", "1000", "--operating-point", "-10,20"]) == 0
     out = " ".join(capsys.readouterr().out.split())  # rich wraps the titles
     assert "L_qq (q) [H] at the operating point i_d = -10 A, i_q = 20 A" in out
-    assert f"L_dd = {l_dd:.6g} H" in out and f"(Lq = {float(SATURATING.Lq):.6g} at 0 A)" in out
+    # in engineering units (mH), as every table a person reads
+    assert f"L_dd = {l_dd * 1e3:.4g} mH" in out and f"(Lq = {float(SATURATING.Lq) * 1e3:.4g} mH at 0 A)" in out
     assert "…" not in out  # no column cut short
 
 

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -36,3 +37,16 @@ def test_fit_takes_a_motor_file(default_bench):
                   delay_samples=motor_file.delay_samples)
     assert cal.names == same.names
     np.testing.assert_allclose(cal.estimate, same.estimate, rtol=1e-12)
+
+
+def test_calibration_str_reads_in_engineering_units(default_fit):
+    """print(cal): each parameter in its own prefix, the estimate and interval to the SE's second significant
+    digit, sigma_hat in mA."""
+    text = str(default_fit)
+    assert re.search(r"^    sigma_hat\s+= \d+\.\d+ mA$", text, re.M), text
+    for name, unit in (("R", "mΩ"), ("Ld", "mH"), ("Lq", "mH"), ("lambda_m", "mWb")):
+        line = re.search(rf"^    {name} +{unit} +(\S+) +(\S+) +\[(\S+), (\S+)\]", text, re.M)
+        assert line, (name, text)
+        estimate, se, low, high = line.groups()
+        assert len(se.replace(".", "").lstrip("0")) == 2, se  # two significant digits
+        assert len(estimate.split(".")[1]) == len(se.split(".")[1]) == len(low.split(".")[1]) == len(high.split(".")[1])

@@ -216,7 +216,7 @@ def test_the_html_report_shows_the_judgement_and_the_advice():
     tol = {"R": Tolerance(None, 0.45, "R max")}
     judged = judge_spec(("R",), np.array([0.44996]), np.array([[0.44988, 0.45004]]), [True], tol).to_dict()
     page = spec_html({"spec": judged})
-    assert 'data-spec="inconclusive"' in page and "x the samples" in page and "R [ohm]" in page
+    assert 'data-spec="inconclusive"' in page and "x the samples" in page and "R [mΩ]" in page
     assert spec_html({}) == ""
 
 

@@ -114,8 +114,14 @@ def cli():
     """
 
 
-def _fmt(x: float) -> str:
-    return "-" if not math.isfinite(x) else f"{x:.6g}"
+def _predicted_cells(nominal: float, half: float, unit: str) -> tuple[str, str, str, str]:
+    """A predicted interval's table cells (`plan`, `design`): the unit as shown (mΩ, mH, ...), the nominal value
+    and the 95 % half-width in it (two significant digits), and the half-width relative to the nominal [%]."""
+    from .._units import display_unit, format_value
+
+    scale, shown = display_unit(nominal if nominal else half, unit)
+    relative = format_value(100 * half / abs(nominal), 1.0, 100 * half / abs(nominal)) if nominal else "-"
+    return shown or "-", format_value(nominal, scale), format_value(half, scale, half), relative
 
 
 _MOTOR_HELP = ("Motor file (TOML): nominal R, Ld, Lq, lambda_m (the prior) and fixed pole_pairs, J, B. "

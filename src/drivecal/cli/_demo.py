@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ._common import _check_out, _console, _fmt, _Positive
+from ._common import _check_out, _console, _Positive
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -21,6 +21,7 @@ def _design_table(run: DesignRun, truth: MotorParams) -> Table:
     from rich.markup import escape
     from rich.table import Table
 
+    from .._units import estimate_cells, format_value
     from ..physics import UNITS
 
     cal = run.calibration
@@ -33,14 +34,14 @@ def _design_table(run: DesignRun, truth: MotorParams) -> Table:
         table.add_column(escape(col), justify=justify, no_wrap=True)
     for i, n in enumerate(cal.names):
         e = errors[n]
-        if cal.identifiable[i]:
-            ci = f"[{_fmt(cal.ci95[i, 0])}, {_fmt(cal.ci95[i, 1])}]"
-            est, err_se = _fmt(cal.estimate[i]), f"{e['error_in_se']:+.2f}"
+        if cal.identifiable[i]:  # each row in its engineering unit, to the SE's second significant digit
+            cells = estimate_cells(float(cal.estimate[i]), UNITS[n], float(cal.se[i]), tuple(cal.ci95[i]))
+            ci, est, err_se = f"[{cells.ci[0]}, {cells.ci[1]}]", cells.estimate, f"{e['error_in_se']:+.2f}"
         else:
-            ci = "[red]not identifiable[/red]"
-            est, err_se = f"[dim]{_fmt(cal.estimate[i])} (prior)[/dim]", "-"
-        table.add_row(n, UNITS[n], _fmt(e["true"]), _fmt(cal.initial[i]), est,
-                      f"{e['error_percent']:+.4f}", err_se, ci)
+            cells = estimate_cells(float(cal.estimate[i]), UNITS[n])
+            ci, est, err_se = "[red]not identifiable[/red]", f"[dim]{cells.estimate} (prior)[/dim]", "-"
+        table.add_row(n, cells.unit, format_value(e["true"], cells.scale), format_value(cal.initial[i], cells.scale),
+                      est, f"{e['error_percent']:+.4f}", err_se, ci)
     return table
 
 

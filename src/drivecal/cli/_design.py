@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import click
 
 from ..errors import PlanError
-from ._common import _check_out, _console, _fmt, _load_motor, _motor_option, _Positive
+from ._common import _check_out, _console, _load_motor, _motor_option, _predicted_cells, _Positive
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -125,6 +125,7 @@ def _print_optimal(result, plan_path, out, console: Console) -> None:
     from rich.markup import escape
     from rich.table import Table
 
+    from .._units import display_unit, format_value
     from ..physics import UNITS
 
     before, after = result.plan_before, result.plan_after
@@ -157,11 +158,16 @@ def _print_optimal(result, plan_path, out, console: Console) -> None:
     table = Table(title=f"predicted 95 % CI half-widths at noise {result.noise_sigma * 1e3:g} mA",
                   title_justify="left")
     table.add_column("plan", justify="left", no_wrap=True)
-    for n in result.names:
-        table.add_column(escape(f"{n} [{UNITS[n]}]"), justify="right", no_wrap=True)
+    # one engineering unit per column (the nominal value's prefix), two significant digits per half-width
+    scales = [display_unit(float(getattr(result.report_before.motor, n)) or float(result.ci95_before[i]), UNITS[n])
+              for i, n in enumerate(result.names)]
+    for n, (_, unit) in zip(result.names, scales):
+        table.add_column(escape(f"{n} [{unit or '-'}]"), justify="right", no_wrap=True)
     table.add_column("log det Cov", justify="right", no_wrap=True)
-    table.add_row("before", *(f"±{x:.3g}" for x in result.ci95_before), f"{result.logdet_before:.2f}")
-    table.add_row("after", *(f"±{x:.3g}" for x in result.ci95_after), f"{result.logdet_after:.2f}")
+    for label, halves, logdet in (("before", result.ci95_before, result.logdet_before),
+                                  ("after", result.ci95_after, result.logdet_after)):
+        table.add_row(label, *(f"±{format_value(x, scale, x)}" for x, (scale, _) in zip(halves, scales)),
+                      f"{logdet:.2f}")
     table.add_row("after / before", *(f"{a / b:.3f}" for a, b in zip(result.ci95_after, result.ci95_before)),
                   f"{result.logdet_after - result.logdet_before:+.2f}")
     console.print(table)
@@ -201,15 +207,14 @@ def _print_design(report, plan_path, console: Console) -> None:
         justify = "left" if col in ("parameter", "unit", "identifiable") else "right"
         table.add_column(escape(col), justify=justify, no_wrap=True)
     for i, n in enumerate(ident.names):
-        nominal = float(getattr(report.motor, n))
-        half = ident.predicted_ci95[i]
-        relative = f"{100 * half / abs(nominal):.3g}" if nominal != 0 else "-"
+        unit, nominal, half, relative = _predicted_cells(float(getattr(report.motor, n)),
+                                                         float(ident.predicted_ci95[i]), UNITS[n])
         if n not in ident.fit_names:
-            table.add_row(n, UNITS[n], _fmt(nominal), "-", "-", "[red]no[/red]")
+            table.add_row(n, unit, nominal, "-", "-", "[red]no[/red]")
         elif n in ident.weak_params:
-            table.add_row(n, UNITS[n], _fmt(nominal), f"{half:.3g}", relative, "[yellow]weak[/yellow]")
+            table.add_row(n, unit, nominal, half, relative, "[yellow]weak[/yellow]")
         else:
-            table.add_row(n, UNITS[n], _fmt(nominal), f"{half:.3g}", relative, "yes")
+            table.add_row(n, unit, nominal, half, relative, "yes")
     console.print(table)
     for n in ident.names:
         if n in ident.reasons:

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import click
 
 from ..errors import DrivecalError
-from ._common import _check_out, _console, _fmt, _format_option, _load_motor, _motor_option, _Positive
+from ._common import _check_out, _console, _format_option, _load_motor, _motor_option, _Positive
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -17,9 +17,12 @@ if TYPE_CHECKING:
 
 
 def _fit_table(cal: Calibration) -> Table:
+    """The parameter table: each row in its parameter's engineering unit (mΩ, mH, mWb), the estimate and its
+    interval to the SE's second significant digit."""
     from rich.markup import escape
     from rich.table import Table
 
+    from .._units import estimate_cells, format_value
     from ..physics import UNITS
 
     table = Table(title=f"{cal.source}: {cal.message}, {int(cal.iterations)} LM steps, "
@@ -28,14 +31,17 @@ def _fit_table(cal: Calibration) -> Table:
         justify = "left" if col in ("parameter", "unit", "95 % CI") else "right"
         table.add_column(escape(col), justify=justify, no_wrap=True)
     for i, n in enumerate(cal.names):
-        prior = _fmt(float(getattr(cal.prior, n)))
+        value, prior = float(cal.estimate[i]), float(getattr(cal.prior, n))
         if cal.identifiable[i]:
+            cells = estimate_cells(value, UNITS[n], float(cal.se[i]), tuple(cal.ci95[i]))
             half = 0.5 * (cal.ci95[i, 1] - cal.ci95[i, 0])
-            table.add_row(n, UNITS[n], prior, _fmt(cal.estimate[i]), f"{cal.se[i]:.3g}",
-                          f"[{_fmt(cal.ci95[i, 0])}, {_fmt(cal.ci95[i, 1])}]", f"±{100 * half / abs(cal.estimate[i]):.3f}")
+            table.add_row(n, cells.unit, format_value(prior, cells.scale), cells.estimate, cells.se,
+                          f"[{cells.ci[0]}, {cells.ci[1]}]",
+                          f"±{format_value(100 * half / abs(value), 1.0, 100 * half / abs(value))}" if value else "-")
         else:
-            table.add_row(n, UNITS[n], prior, f"[dim]{_fmt(cal.estimate[i])} (prior)[/dim]", "-",
-                          "[red]not identifiable[/red]", "-")
+            cells = estimate_cells(value, UNITS[n])
+            table.add_row(n, cells.unit, format_value(prior, cells.scale), f"[dim]{cells.estimate} (prior)[/dim]",
+                          "-", "[red]not identifiable[/red]", "-")
     return table
 
 
@@ -185,7 +191,7 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
         colour = "red" if "saturates" in line else "green"
         console.print(f"saturation check: [{colour}]{escape(line)}[/{colour}]")
     if payload.get("spec"):
-        _print_spec(payload["spec"], console)
+        _print_spec(payload["spec"], payload["parameters"], console)
     if out_dir is not None:
         console.print(f"wrote {len(written)} files to {out_dir}/: " + ", ".join(p.name for p in written))
     return exit_code
@@ -200,16 +206,21 @@ def _exit_code(status, spec) -> int:
     return Spec(spec["status"]).exit_code
 
 
-def _print_spec(spec: dict, console) -> None:
+def _print_spec(spec: dict, parameters: dict, console) -> None:
     """The judgement against the motor file's tolerances: the headline, a line per parameter, the advice."""
     from rich.markup import escape
+
+    from .._units import display_unit, format_value
 
     colour = {"pass": "green", "fail": "red"}.get(spec["status"], "yellow")
     console.print(f"specification: [{colour}]{escape(spec['headline'])}[/{colour}]")
     for p in spec["parameters"]:
         low, high = p["ci95"]
-        interval = "not identified" if low is None else f"95 % CI [{_fmt(low)}, {_fmt(high)}]"
-        console.print(f"  {p['name']}: {p['outcome']} ({interval} {p['unit']}; tolerance {escape(p['tolerance'])})")
+        scale, unit = display_unit(p["estimate"] if low is None else max(abs(low), abs(high)), p["unit"])
+        se = parameters.get(p["name"], {}).get("se")  # the digits of the fit table
+        interval = "not identified" if low is None else (
+            f"95 % CI [{format_value(low, scale, se)}, {format_value(high, scale, se)}]")
+        console.print(f"  {p['name']}: {p['outcome']} ({interval} {unit}; tolerance {escape(p['tolerance'])})")
     for line in spec["advice"]:
         console.print(f"  [yellow]{escape(line)}[/yellow]")
 
@@ -231,12 +242,15 @@ def _effects_line(selection) -> str:
     """One line per bench effect: included or not, and the evidence."""
     from rich.markup import escape
 
+    from .._units import format_quantity
+    from ..physics import UNITS
+
     lines = [f"bench effects ({selection.mode}):"]
     for c in selection.choices:
         mark = "[green]fitted[/green]" if c.included else "[dim]not fitted[/dim]"
         evidence = f", {c.test} p = {c.p_value:.2g}" if c.test and c.p_value == c.p_value else ""
-        value = "; ".join(f"{n} = {_fmt(v)} ± {1.96 * s:.2g} (95 %)" for n, (v, s) in c.estimate.items()
-                          if s == s and s > 0)
+        value = "; ".join(f"{n} = {format_quantity(v, UNITS.get(n, '-'), 1.96 * s)} (95 %)"
+                          for n, (v, s) in c.estimate.items() if s == s and s > 0)
         lines.append(f"  {c.effect}: {mark} ({escape(c.how)}{evidence})" + (f": {escape(value)}" if value else ""))
     return "\n".join(lines)
 

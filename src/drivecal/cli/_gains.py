@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ._common import _check_out, _console, _fmt, _Positive
+from ._common import _check_out, _console, _Positive
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -162,6 +162,7 @@ def _print_gains(result, console: Console, source: str) -> None:
     from rich.markup import escape
     from rich.table import Table
 
+    from .._units import format_quantity, format_value
     from ..report import AXES
 
     spec_unit = "deg" if result.spec_kind == "phase_margin" else "Hz"
@@ -182,24 +183,27 @@ def _print_gains(result, console: Console, source: str) -> None:
         i_d, i_q = result.operating_point
         plant = (f"L = incremental L_dd (d), L_qq (q) [H] at the operating point i_d = {i_d:g} A, i_q = {i_q:g} A"
                  + (" (beyond the calibration's data)" if result.extrapolated else ""))
-        console.print(escape(f"plant inductances [H] at i_d = {i_d:g} A, i_q = {i_q:g} A: " + ", ".join(
-            f"{ax.inductance_name} = {_fmt(ax.inductance)} ({dict(AXES)[ax.axis]} = "
-            f"{_fmt(ax.inductance_at_zero_current)} at 0 A)" for ax in result.axes)))
+        console.print(escape(f"plant inductances at i_d = {i_d:g} A, i_q = {i_q:g} A: " + ", ".join(
+            f"{ax.inductance_name} = {format_quantity(ax.inductance, 'H')} ({dict(AXES)[ax.axis]} = "
+            f"{format_quantity(ax.inductance_at_zero_current, 'H')} at 0 A)" for ax in result.axes)))
     table = Table(title=escape(f"gains by pole-zero cancellation: {rule}; {plant}"), title_justify="left")
     for col in ("axis", "gain [unit]", "value", "SE first-order", "SD Monte Carlo", "MC / first-order [-]",
                 "from"):
-        table.add_column(col, justify="left" if col in ("axis", "gain [unit]", "from") else "right", no_wrap=True)
+        table.add_column(escape(col), justify="left" if col in ("axis", "gain [unit]", "from") else "right",
+                         no_wrap=True)
     for ax in result.axes:
-        rows = [("Kp [V/A]", ax.kp, ax.kp_se, ax.kp_sd_mc, f"{ax.inductance_name} = {_fmt(ax.inductance)} H"),
-                ("Ki [V/(A*s)]", ax.ki, ax.ki_se, ax.ki_sd_mc, f"R = {_fmt(ax.resistance)} ohm")]
+        rows = [("Kp [V/A]", ax.kp, ax.kp_se, ax.kp_sd_mc,
+                 f"{ax.inductance_name} = {format_quantity(ax.inductance, 'H')}"),
+                ("Ki [V/(A*s)]", ax.ki, ax.ki_se, ax.ki_sd_mc, f"R = {format_quantity(ax.resistance, 'ohm')}")]
         if ax.ki_ts is not None:
             ts = 1.0 / result.sample_rate_hz
             rows.append(("Ki*Ts [V/A]", ax.ki_ts, ax.ki_se * ts, ax.ki_sd_mc * ts, "discrete integrator step"))
         for name, value, se, sd, origin in rows:
             ratio = sd / se if math.isfinite(se) and se > 0 else math.nan
             label = ax.axis if ax.calibrated else f"{ax.axis} (not calibrated)"
-            table.add_row(label, name, _fmt(value), _fmt(se), _fmt(sd), "-" if not math.isfinite(ratio)
-                          else f"{ratio:.3f}", origin)
+            # the gain to its SE's second significant digit, SE and SD to two significant digits
+            table.add_row(label, name, format_value(value, 1.0, se), format_value(se, 1.0, se),
+                          format_value(sd, 1.0, sd), "-" if not math.isfinite(ratio) else f"{ratio:.3f}", origin)
     console.print(table)
     loop = Table(title=f"closed loop of these gains on true motors drawn from the covariance ({result.num_samples} "
                        "draws): at the estimate, MC mean [2.5 %, 97.5 %]", title_justify="left")
@@ -221,6 +225,8 @@ def _print_firmware(fw, console: Console) -> None:
     from rich.markup import escape
     from rich.table import Table
 
+    from .._units import display_unit, format_value
+
     base = ("no per-unit base (give --base-current and --base-voltage)" if fw.base_current is None else
             f"per unit: {fw.base_current:g} A, {fw.base_voltage:g} V"
             + ("" if fw.base_frequency_hz is None else f", {fw.base_frequency_hz:g} Hz electrical")
@@ -232,6 +238,9 @@ def _print_firmware(fw, console: Console) -> None:
         table.add_column(col, justify="left" if col in ("name", "unit") else "right", no_wrap=True)
     for c in fw.constants:
         q, shift = c.fixed if c.fixed is not None else ("-", "-")
-        table.add_row(c.name, _fmt(c.value), c.unit, _fmt(c.se), "-" if c.pu is None else f"{c.pu:.6g}", str(q),
-                      str(shift))
+        se = c.se if math.isfinite(c.se) and c.se > 0 else None
+        scale, unit = display_unit(max(abs(c.value), se or 0.0), c.unit)  # each row in its engineering unit
+        table.add_row(c.name, format_value(c.value, scale, se), unit or "-",
+                      "-" if se is None else format_value(se, scale, se), "-" if c.pu is None else f"{c.pu:.6g}",
+                      str(q), str(shift))
     console.print(table)

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ._common import _check_out, _console, _fmt, _load_motor, _motor_option, _Positive
+from ._common import _check_out, _console, _load_motor, _motor_option, _predicted_cells, _Positive
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -121,7 +121,5 @@ def _print_plan(report, out, console: Console) -> None:
     for col in ("parameter", "unit", "nominal", "± 95 % CI", "rel. [%]"):
         table.add_column(escape(col), justify="left" if col in ("parameter", "unit") else "right", no_wrap=True)
     for i, n in enumerate(ident.names):
-        nominal = float(getattr(report.motor, n))
-        half = ident.predicted_ci95[i]
-        table.add_row(n, UNITS[n], _fmt(nominal), f"{half:.3g}", f"{100 * half / abs(nominal):.3g}" if nominal else "-")
+        table.add_row(n, *_predicted_cells(float(getattr(report.motor, n)), float(ident.predicted_ci95[i]), UNITS[n]))
     console.print(table)

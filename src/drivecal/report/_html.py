@@ -27,6 +27,7 @@ import numpy as np
 from ..physics import UNITS
 from ..results import escape as _e, format_number as _fmt, summary_html
 from .._io import atomic_path
+from .._units import display_unit, format_quantity, format_value
 
 #: Resolution of the embedded figures (dots per inch); fixed for byte-identical PNGs.
 FIG_DPI = 80
@@ -80,17 +81,34 @@ def spec_html(fit: Mapping[str, Any]) -> str:
     if not spec:
         return ""
     colour = {"pass": "calibrated", "fail": "failed"}.get(spec["status"], "partial")
-    rows = "".join(
-        f'<tr><td class="l">{_e(p["name"])} [{_e(p["unit"])}]</td><td class="l">{_e(p["outcome"])}</td>'
-        f'<td>{_fmt(p["estimate"])}</td><td class="l">[{_fmt(p["ci95"][0])}, {_fmt(p["ci95"][1])}]</td>'
-        f'<td class="l">{_e(p["tolerance"])}: {_fmt(p["low"])} .. {_fmt(p["high"])}</td></tr>'
-        for p in spec["parameters"])
+    params = fit.get("parameters") or {}
+    rows = "".join(_spec_row(p, (params.get(p["name"]) or {}).get("se")) for p in spec["parameters"])
     head = ("<tr><th class='l'>parameter</th><th class='l'>outcome</th><th>estimate</th><th class='l'>95 % CI</th>"
             "<th class='l'>tolerance: limits</th></tr>")
     advice = "".join(f"<li>{_e(a)}</li>" for a in spec["advice"])
     return (f'<div class="verdict {colour}" data-spec="{_e(spec["status"])}">Specification: '
             f'<b>{_e(spec["headline"])}</b>{"<ul>" + advice + "</ul>" if advice else ""}</div>'
             + (f'<table class="spec">{head}{rows}</table>' if rows else ""))
+
+
+def _spec_row(p: Mapping[str, Any], se: float | None) -> str:
+    """One parameter's judgement in its engineering unit: the estimate and interval to the SE's second
+    significant digit (as in the summary), the limits as given."""
+    low, high = p["ci95"]
+    half = se if low is not None and high is not None else None
+    scale, unit = display_unit(p["estimate"] if low is None else max(abs(low), abs(high)), p["unit"])
+
+    def shown(x, digits=None):
+        return "-" if x is None else format_value(x, scale, digits)
+
+    return (f'<tr><td class="l">{_e(p["name"])} [{_e(unit or "-")}]</td><td class="l">{_e(p["outcome"])}</td>'
+            f'<td>{shown(p["estimate"], half)}</td><td class="l">[{shown(low, half)}, {shown(high, half)}]</td>'
+            f'<td class="l">{_e(p["tolerance"])}: {shown(p["low"])} .. {shown(p["high"])}</td></tr>')
+
+
+def _quantity(value: Any, unit: str) -> str:
+    """A value of the result JSON for a person (engineering units), '-' where there is none."""
+    return format_quantity(value, unit) if isinstance(value, (int, float)) and np.isfinite(value) else "-"
 
 
 def _kv_table(rows: list[tuple[str, Any]], cls: str = "kv") -> str:
@@ -106,8 +124,8 @@ def _statistics_html(fit: Mapping[str, Any]) -> str:
         ("samples m (i_d and i_q)", fit["num_residuals"]),
         ("fitted parameters n", f"{len(fit['names'])} ({', '.join(fit['names'])})"),
         ("degrees of freedom m - n", fit.get("dof", "")),
-        ("sigma_hat [A]", _fmt(fit["sigma_hat"])),
-        ("stated sensor noise [A]", _fmt(res.get("sigma_stated"))),
+        ("sigma_hat", _quantity(fit["sigma_hat"], "A")),
+        ("stated sensor noise", _quantity(res.get("sigma_stated"), "A")),
         ("RSS [A^2]", _fmt(fit.get("rss"))),
         ("identifiability", f"rank {ident['rank']}/{ident.get('num_params', len(fit['parameters']))}, "
                             f"condition number {_fmt(ident['condition_number'], '.3g')}"),
@@ -186,8 +204,8 @@ def fit_section_html(fit: Mapping[str, Any], label: str, anchor: str,
         figures = [(cap, render(name, kwargs, FIG_DPI)) for cap, (name, kwargs) in figure_jobs(fit, label)]
     figs = _figures_html(figures)
     prior = fit.get("prior") or {n: p.get("prior") for n, p in fit["parameters"].items()}
-    prior_rows = [(f"{n} [{UNITS.get(n, 'N*m' if n == 'T_load' else '-')}]", _fmt(v)) for n, v in prior.items()]
-    fixed_rows = [(f"{n} [{UNITS.get(n, '-')}]", _fmt(v)) for n, v in fit.get("fixed", {}).items()]
+    prior_rows = [(n, _quantity(v, UNITS.get(n, "-"))) for n, v in prior.items()]
+    fixed_rows = [(n, _quantity(v, UNITS.get(n, "-"))) for n, v in fit.get("fixed", {}).items()]
     inp = fit.get("input") or {}
     versions = fit.get("versions") or {}
     prov = [("input SHA-256", inp.get("sha256", "-")), ("hashed", inp.get("what", "-")),

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._stats import t_ppf
+from .._units import estimate_cells, format_quantity, format_value
 from ..identify import Identifiability
 from ..physics import ADDITIVE_SCALE, EXPONENTS, FIXED, MAGNETIC, MECHANICAL, NUISANCE, UNITS, MotorParams
 from .._status import solver_message
@@ -309,8 +310,8 @@ class Calibration:
         for i, n in enumerate(self.names):
             if not self.identifiable[i]:
                 why = self.identifiability.reasons.get(n, "not identifiable")
-                out.append(f"{n} is not identifiable ({why}); held at its prior {self.estimate[i]:.6g} {UNITS[n]}, "
-                           "not calibrated")
+                out.append(f"{n} is not identifiable ({why}); held at its prior "
+                           f"{format_quantity(float(self.estimate[i]), UNITS[n])}, not calibrated")
         for a, b, r in self.correlations(threshold=0.9):
             out.append(f"{a} and {b} are strongly correlated (r = {r:+.3f}): the data mostly fixes a combination")
         return out
@@ -326,8 +327,6 @@ class Calibration:
         """``Calibration(R = 450.027 ± 0.043 mΩ, ..., converged, source)``: the estimates in engineering units."""
         if self.batch_shape:
             return f"Calibration(batch of {len(self)} fits, {int(np.sum(self.converged))} converged)"
-        from .._units import format_quantity
-
         parts = [f"{n} = {format_quantity(float(self.estimate[i]), UNITS[n], float(self.se[i]))}"
                  if self.identifiable[i] else f"{n} = {format_quantity(float(self.estimate[i]), UNITS[n])} (prior)"
                  for i, n in enumerate(self.names)]
@@ -345,24 +344,12 @@ class Calibration:
             ("# data points", f"{self.num_residuals} (i_d and i_q samples)"),
             ("# variables", f"{len(self.fit_names)} ({', '.join(self.fit_names)})"),
             ("degrees of freedom", f"{self.dof}"),
-            ("sigma_hat [A]", f"{float(self.sigma_hat):.6g}"),
+            ("sigma_hat", format_quantity(float(self.sigma_hat), "A")),
             ("RSS [A^2]", f"{float(self.rss):.6g}"),
             ("identifiability", f"rank {ident.rank}/{len(ident.names)}, condition number {ident.condition_number:.3g}"),
         ]
         lines = ["[[Fit Statistics]]"] + [f"    {k:<19}= {v}" for k, v in stat]
-        lines += ["[[Parameters]]",
-                  f"    {'name':<9} {'unit':<4} {'estimate':>12} {'std err':>10} {'95% CI':>27} "
-                  f"{'rel. CI':>12}  identifiable"]
-        for i, n in enumerate(self.names):
-            if self.identifiable[i]:
-                ci = f"[{self.ci95[i, 0]:.6g}, {self.ci95[i, 1]:.6g}]"
-                est = abs(float(self.estimate[i]))
-                rel = f"{100.0 * self.t_factor * float(self.se[i]) / est:.3g} %" if est > 0 else "-"
-                lines.append(f"    {n:<9} {UNITS[n]:<4} {self.estimate[i]:>12.6g} {self.se[i]:>10.3g} {ci:>27} "
-                             f"{'+/-' + rel:>12}  yes")
-            else:
-                lines.append(f"    {n:<9} {UNITS[n]:<4} {self.estimate[i]:>12.6g} {'-':>10} {'held at prior':>27} "
-                             f"{'-':>12}  NO")
+        lines += ["[[Parameters]]"] + self._parameter_lines()
         lines += self._magnetic_lines()
         pairs = self.correlations(threshold=0.1)
         lines.append("[[Correlations]] (unreported correlations are < 0.100)")
@@ -373,6 +360,24 @@ class Calibration:
             lines.append("[[Warnings]]")
             lines += [f"    {w}" for w in warnings]
         return "\n".join(lines)
+
+    def _parameter_lines(self) -> list[str]:
+        """One line per parameter in its engineering unit (mΩ, mH, mWb): estimate, SE and 95 % CI to the SE's
+        second significant digit."""
+        rows = [("name", "unit", "estimate", "std err", "95% CI", "rel. CI", "identifiable")]
+        for i, n in enumerate(self.names):
+            value, se = float(self.estimate[i]), float(self.se[i])
+            if self.identifiable[i]:
+                c = estimate_cells(value, UNITS[n], se, tuple(self.ci95[i]))
+                rel = 100.0 * self.t_factor * se / abs(value) if value else math.nan
+                rows.append((n, c.unit, c.estimate, c.se, f"[{c.ci[0]}, {c.ci[1]}]",
+                             "-" if rel != rel else f"+/-{format_value(rel, 1.0, rel)} %", "yes"))
+            else:
+                c = estimate_cells(value, UNITS[n])
+                rows.append((n, c.unit, c.estimate, "-", "held at prior", "-", "NO"))
+        widths = [max(len(r[k]) for r in rows) for k in range(6)]
+        return [f"    {r[0]:<{widths[0]}} {r[1]:<{widths[1]}} {r[2]:>{widths[2]}} {r[3]:>{widths[3]}} "
+                f"{r[4]:>{widths[4]}} {r[5]:>{widths[5]}}  {r[6]}" for r in rows]
 
     def _magnetic_lines(self) -> list[str]:
         """The saturating law's settings, where the calibrated motor saturates (else nothing)."""

@@ -7,6 +7,8 @@ import html as _html
 import math
 from typing import Any, Mapping
 
+from .._units import estimate_cells, format_value
+
 
 def escape(x: Any) -> str:
     return _html.escape(str(x))
@@ -19,20 +21,23 @@ def format_number(x: Any, spec: str = ".6g") -> str:
 
 
 def summary_html(fit: Mapping[str, Any]) -> str:
-    """The summary table of one fit: estimate, SE, 95 % CI, relative CI, identifiable."""
+    """The summary table of one fit: estimate, SE, 95 % CI, relative CI, identifiable; each parameter in its
+    engineering unit (mΩ, mH, mWb), the estimate and its interval to the SE's second significant digit."""
     rows = []
     for name, p in fit["parameters"].items():
         ok = p["identifiable"]
         ci = p["ci95"] or [None, None]
         est = p["estimate"]
+        cells = estimate_cells(est if est is not None else float("nan"), p["unit"], p["se"] if ok else None,
+                               tuple(ci))
         rel = 50.0 * (ci[1] - ci[0]) / abs(est) if ok and None not in ci and est else None
         ident = "yes" if ok else f"NO: {p.get('reason', 'not identifiable')} (held at prior)"
         rows.append(
-            f'<tr class="{"yes" if ok else "no"}"><td class="l">{escape(name)}</td><td class="l">{escape(p["unit"])}</td>'
-            f"<td>{format_number(est)}</td><td>{format_number(p['se'], '.3g')}</td><td>{format_number(ci[0])}</td><td>{format_number(ci[1])}</td>"
-            f'<td>{format_number(rel, ".3g")}</td><td class="l">{escape(ident)}</td></tr>'
+            f'<tr class="{"yes" if ok else "no"}"><td class="l">{escape(name)}</td><td class="l">{escape(cells.unit)}'
+            f"</td><td>{cells.estimate}</td><td>{cells.se}</td><td>{cells.ci[0]}</td><td>{cells.ci[1]}</td>"
+            f'<td>{"-" if rel is None else format_value(rel, 1.0, rel)}</td><td class="l">{escape(ident)}</td></tr>'
         )
-    head = ("<tr><th class='l'>parameter</th><th class='l'>SI unit</th><th>estimate [SI unit]</th>"
-            "<th>SE [SI unit]</th><th>95 % CI low [SI unit]</th><th>95 % CI high [SI unit]</th>"
+    head = ("<tr><th class='l'>parameter</th><th class='l'>unit</th><th>estimate [unit]</th>"
+            "<th>SE [unit]</th><th>95 % CI low [unit]</th><th>95 % CI high [unit]</th>"
             "<th>relative CI half-width [%]</th><th class='l'>identifiable</th></tr>")
     return f'<table class="summary">{head}{"".join(rows)}</table>'
