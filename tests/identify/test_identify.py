@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 import drivecal as dc
+from drivecal.plan import load_plan
 
 
 def test_default_plan_identifies_all_four(truth):
@@ -97,3 +100,17 @@ def test_dead_time_that_looks_like_r_is_named_with_the_segment_that_would_separa
     # The default plan (its spin-up reverses every phase current) needs no advice.
     idf = assess_identifiability(Experiment.from_plan(dc.default_plan()), motor, names=names)
     assert idf.identifiable and not any("dead time" in r for r in idf.reasons.values())
+
+
+def test_the_one_line_verdict_names_what_is_at_fault(truth):
+    """One line for every command: identifiable; NOT identifiable naming the dead; weakly naming the weak."""
+    good = dc.assess_identifiability(dc.Experiment.from_plan(dc.default_plan()), truth)
+    assert good.verdict() == ("identifiable", "green")
+    assert good.summary() == f"rank 4/4, condition number {good.condition_number:.3g} -> identifiable"
+    poor = dc.assess_identifiability(dc.Experiment.from_plan(dc.locked_q_step_plan()), truth)
+    assert poor.verdict() == ("NOT identifiable: Ld, lambda_m", "red")
+    assert poor.summary(markup=True).endswith("-> [red]NOT identifiable: Ld, lambda_m[/red]")
+    close = load_plan(Path(__file__).resolve().parents[2] / "examples" / "close_plan.toml")  # hot steps 1 K warmer
+    weak = dc.assess_design(close, truth, names=dc.ESTIMATED + ("alpha_R",)).identifiability
+    assert weak.rank == 5 and not weak.identifiable
+    assert weak.verdict() == ("weakly identifiable: R, alpha_R", "yellow")

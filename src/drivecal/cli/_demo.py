@@ -47,9 +47,7 @@ def _design_table(run: DesignRun, truth: MotorParams) -> Table:
 
 def _identifiability_lines(run: DesignRun) -> str:
     ident = run.calibration.identifiability
-    verdict = "[green]identifiable[/green]" if ident.identifiable else "[red]NOT identifiable[/red]"
-    lines = [f"identifiability ({run.label}): rank {ident.rank}/{len(ident.names)}, condition number "
-             f"{ident.condition_number:.3g} -> {verdict}"]
+    lines = [f"identifiability ({run.label}): {ident.summary(markup=True)}"]
     lines += [f"  [red]{name}[/red]: {why}" for name, why in ident.reasons.items()]
     return "\n".join(lines)
 

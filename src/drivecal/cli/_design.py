@@ -78,10 +78,13 @@ def design(plan_path, motor_path, noise, as_json, optimize, budget, out_path):
         what = []
         if report.problems:
             what.append(f"{len(report.problems)} feasibility problem(s)")
-        dead = report.identifiability.dead_params + report.identifiability.confounded_params
+        ident = report.identifiability
+        dead = ident.dead_params + ident.confounded_params
         if dead:
             what.append("cannot identify " + ", ".join(dead))
-        elif not report.identifiability.identifiable:
+        elif ident.weak_params:
+            what.append("identifies " + ", ".join(ident.weak_params) + " only weakly")
+        elif not ident.identifiable:
             what.append("is ill-conditioned")
         raise PlanError(f"{plan_path}: the plan {' and '.join(what)}; see the assessment above.")
 
@@ -171,10 +174,9 @@ def _print_optimal(result, plan_path, out, console: Console) -> None:
     table.add_row("after / before", *(f"{a / b:.3f}" for a, b in zip(result.ci95_after, result.ci95_before)),
                   f"{result.logdet_after - result.logdet_before:+.2f}")
     console.print(table)
-    verdict = "identifiable" if result.report_after.identifiability.identifiable else "NOT identifiable"
     console.print(f"confidence volume ratio (after / before) {result.volume_ratio:.3g}; det(Cov) ratio "
-                  f"{result.det_ratio:.3g}; improved plan feasible, {verdict}, condition number "
-                  f"{result.report_after.identifiability.condition_number:.3g}")
+                  f"{result.det_ratio:.3g}; improved plan feasible, identifiability "
+                  f"{result.report_after.identifiability.summary()}")
     if not result.improved:
         console.print("[yellow]no better feasible plan was found: the input plan is written unchanged[/yellow]")
     console.print(f"wrote {out}")
@@ -199,9 +201,7 @@ def _print_design(report, plan_path, console: Console) -> None:
     console.print(seg_table)
     for p in report.problems:
         console.print(f"  [red]problem[/red]: {p}")
-    verdict = "[green]identifiable[/green]" if ident.identifiable else "[red]NOT identifiable[/red]"
-    console.print(f"identifiability: rank {ident.rank}/{len(ident.names)}, condition number "
-                  f"{ident.condition_number:.3g} -> {verdict}")
+    console.print(f"identifiability: {ident.summary(markup=True)}")
     table = Table(title=f"predicted 95 % intervals at noise {ident.noise_sigma * 1e3:g} mA", title_justify="left")
     for col in ("parameter", "unit", "nominal", "± 95 % CI", "rel. [%]", "identifiable"):
         justify = "left" if col in ("parameter", "unit", "identifiable") else "right"

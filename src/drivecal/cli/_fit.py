@@ -169,13 +169,11 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
         click.echo(json.dumps(payload, indent=2))
         return exit_code
     ident = cal.identifiability
-    verdict = "[green]identifiable[/green]" if ident.identifiable else "[red]NOT fully identifiable[/red]"
     speed = "measured speed as input" if payload["measured_speed"] else "speed simulated from J and B"
     if experiment.speed_outputs:
         speed = (f"measured speed as a second output (weight {float(experiment.speed_weight):.3g} A per rad/s: "
                  "current noise over speed noise)")
-    console.print(f"identifiability: rank {ident.rank}/{len(ident.names)}, condition number "
-                  f"{ident.condition_number:.3g} -> {verdict}; {speed}")
+    console.print(f"identifiability: {ident.summary(markup=True)}; {speed}")
     for name, why in ident.reasons.items():
         console.print(f"  [red]{name}[/red]: {why}")
     console.print(_fit_table(cal))

@@ -113,8 +113,7 @@ def _print_plan(report, out, console: Console) -> None:
                           f"{float(seg.v_q):.4g}", f"{pred.peak_current:.3g}",
                           "-" if pred.locked else f"{pred.peak_speed:.4g}")
     console.print(seg_table)
-    console.print(f"identifiability: rank {ident.rank}/{len(ident.names)}, condition number "
-                  f"{ident.condition_number:.3g} -> [green]identifiable[/green]")
+    console.print(f"identifiability: {ident.summary(markup=True)}")
     for note in report.notes:
         console.print(f"  note: {escape(note)}")
     table = Table(title=f"predicted 95 % intervals at noise {ident.noise_sigma * 1e3:.4g} mA", title_justify="left")

@@ -10,8 +10,7 @@ nominal motor (forward mode: four parameters, thousands of outputs):
 * so are saturation coefficients the plan's currents cannot show (one current level on
   their axis, no d- and q-axis current together: ``_magnetic_reasons``), named with the
   segment that would show them;
-* parameters that only move together with others (a null direction of J once
-  the dead ones are removed) are *confounded*;
+* parameters that only move together with others (a null direction of J once the dead ones are removed) are *confounded*;
 * the predicted 95 % CI half-widths ``t * sigma * sqrt(diag((J^T J)^-1))`` of the
   identifiable rest, for a given sensor noise, before any data exists.
 """
@@ -133,6 +132,23 @@ class Identifiability:
     predicted_ci95: tuple[float, ...]
     variance_inflation: tuple[float, ...] = ()
 
+    def verdict(self) -> tuple[str, str]:
+        """``(words, colour)``: ``identifiable``, ``weakly identifiable: R, alpha_R`` (full rank, see ``reasons``),
+        ``NOT identifiable: Ld, lambda_m`` (dead or confounded) or ``ill-conditioned`` (none to blame)."""
+        lost, weak = ([n for n in self.names if n in group] for group in (self.dead_params + self.confounded_params,
+                                                                          self.weak_params))
+        if self.identifiable:
+            return "identifiable", "green"
+        if lost or self.rank < len(self.names):
+            return "NOT identifiable" + (f": {', '.join(lost)}" if lost else ""), "red"
+        return (f"weakly identifiable: {', '.join(weak)}", "yellow") if weak else ("ill-conditioned", "red")
+
+    def summary(self, markup: bool = False) -> str:
+        """``rank 4/4, condition number 3.67 -> identifiable``: the line every command prints (rich colours with ``markup``)."""
+        words, colour = self.verdict()
+        return f"rank {self.rank}/{len(self.names)}, condition number {self.condition_number:.3g} -> " + (
+            f"[{colour}]{words}[/{colour}]" if markup else words)
+
     def to_dict(self) -> dict:
         """The JSON ``identifiability`` block."""
         def finite(x):
@@ -157,7 +173,6 @@ class Identifiability:
             "predicted_ci95": {n: finite(v) for n, v in zip(self.names, self.predicted_ci95)},
             "variance_inflation": {n: finite(v) for n, v in zip(self.names, self.variance_inflation)},
         }
-
 
     @classmethod
     def from_dict(cls, d: dict) -> Identifiability:

@@ -24,6 +24,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from ..identify import Identifiability
 from ..physics import UNITS
 from ..results import escape as _e, format_number as _fmt, summary_html
 from .._io import atomic_path
@@ -127,8 +128,7 @@ def _statistics_html(fit: Mapping[str, Any]) -> str:
         ("sigma_hat", _quantity(fit["sigma_hat"], "A")),
         ("stated sensor noise", _quantity(res.get("sigma_stated"), "A")),
         ("RSS [A^2]", _fmt(fit.get("rss"))),
-        ("identifiability", f"rank {ident['rank']}/{ident.get('num_params', len(fit['parameters']))}, "
-                            f"condition number {_fmt(ident['condition_number'], '.3g')}"),
+        ("identifiability", Identifiability.from_dict(ident).summary()),
         ("residuals white (Ljung-Box)", "-" if not res else
          f"{'yes' if res['white'] else 'NO'} (each p >= {res['whiteness_p_threshold']:.2g} required)"),
     ]

@@ -346,7 +346,7 @@ class Calibration:
             ("degrees of freedom", f"{self.dof}"),
             ("sigma_hat", format_quantity(float(self.sigma_hat), "A")),
             ("RSS [A^2]", f"{float(self.rss):.6g}"),
-            ("identifiability", f"rank {ident.rank}/{len(ident.names)}, condition number {ident.condition_number:.3g}"),
+            ("identifiability", ident.summary()),
         ]
         lines = ["[[Fit Statistics]]"] + [f"    {k:<19}= {v}" for k, v in stat]
         lines += ["[[Parameters]]"] + self._parameter_lines()
