@@ -53,21 +53,35 @@ def excitation(clean: Sequence[Mapping], noisy: Sequence[Mapping], title: str = 
         t_ms = np.asarray(c["t"]) * 1e3
         volts, amps, measured = (np.asarray(x) for x in (c["voltages"], c["currents"], m["currents"]))
         ax_v, ax_i = axes[0, j], axes[1, j]
-        ax_v.plot(t_ms, volts[:, 0], color="C0", label="v_d")
-        ax_v.plot(t_ms, volts[:, 1], color="C3", label="v_q")
-        ax_v.set_title(f"{c['name']} ({'locked' if c['locked'] else 'free'})", fontsize=10)
+        _voltages(ax_v, t_ms, volts[:, 0], volts[:, 1], c)
         ax_i.plot(t_ms, measured[:, 0], ".", ms=1.5, color="0.6", alpha=0.6)
         ax_i.plot(t_ms, measured[:, 1], ".", ms=1.5, color="0.6", alpha=0.6, label="measured")
         ax_i.plot(t_ms, amps[:, 0], color="C0", lw=1.6, label="i_d (noise-free)")
         ax_i.plot(t_ms, amps[:, 1], color="C3", lw=1.6, label="i_q (noise-free)")
-        ax_i.set_xlabel("time [ms]")
-        for ax in (ax_v, ax_i):
-            ax.grid(alpha=0.3)
+        _grid(ax_v, ax_i)
+    return _finish(fig, axes, 5, f"Excitation and response{': ' + title if title else ''}")
+
+
+def _voltages(ax, t_ms: np.ndarray, v_d: np.ndarray, v_q: np.ndarray, segment: Mapping) -> None:
+    """A segment's applied v_d, v_q (V) against time (ms), titled with its name and rotor condition."""
+    ax.plot(t_ms, v_d, color="C0", label="v_d")
+    ax.plot(t_ms, v_q, color="C3", label="v_q")
+    ax.set_title(f"{segment['name']} ({'locked' if segment['locked'] else 'free'})", fontsize=10)
+
+
+def _grid(ax_v, ax_i) -> None:
+    ax_i.set_xlabel("time [ms]")
+    for ax in (ax_v, ax_i):
+        ax.grid(alpha=0.3)
+
+
+def _finish(fig, axes, markerscale: float, title: str):
+    """Axis labels and legends of a voltages-over-currents grid, its title, and the layout."""
     axes[0, 0].set_ylabel("voltage [V]")
     axes[1, 0].set_ylabel("current [A]")
     axes[0, 0].legend(fontsize=8)
-    axes[1, 0].legend(fontsize=8, markerscale=5)
-    fig.suptitle(f"Excitation and response{': ' + title if title else ''}")
+    axes[1, 0].legend(fontsize=8, markerscale=markerscale)
+    fig.suptitle(title)
     fig.tight_layout()
     return fig
 
@@ -186,25 +200,15 @@ def currents(segments: Sequence[Mapping], title: str = ""):
         a = _segment_arrays(seg)
         t_ms = a["t"] * 1e3
         ax_v, ax_i = axes[0, j], axes[1, j]
-        ax_v.plot(t_ms, a["v_d"], color="C0", label="v_d")
-        ax_v.plot(t_ms, a["v_q"], color="C3", label="v_q")
-        ax_v.set_title(f"{seg['name']} ({'locked' if seg['locked'] else 'free'})", fontsize=10)
+        _voltages(ax_v, t_ms, a["v_d"], a["v_q"], seg)
         ax_i.plot(t_ms, a["i_d"], ".", ms=1.5, color="C0", alpha=0.35)
         ax_i.plot(t_ms, a["i_q"], ".", ms=1.5, color="C3", alpha=0.35)
         ax_i.plot(t_ms, a["i_d_pred"], color="k", lw=1.2, label="predicted (fit)")
         ax_i.plot(t_ms, a["i_q_pred"], color="k", lw=1.2)
         ax_i.plot([], [], ".", color="C0", label="i_d measured")
         ax_i.plot([], [], ".", color="C3", label="i_q measured")
-        ax_i.set_xlabel("time [ms]")
-        for ax in (ax_v, ax_i):
-            ax.grid(alpha=0.3)
-    axes[0, 0].set_ylabel("voltage [V]")
-    axes[1, 0].set_ylabel("current [A]")
-    axes[0, 0].legend(fontsize=8)
-    axes[1, 0].legend(fontsize=8, markerscale=4)
-    fig.suptitle(f"Excitation, measured and predicted currents{': ' + title if title else ''}")
-    fig.tight_layout()
-    return fig
+        _grid(ax_v, ax_i)
+    return _finish(fig, axes, 4, f"Excitation, measured and predicted currents{': ' + title if title else ''}")
 
 
 def residuals(segments: Sequence[Mapping], sigma_hat: float | None = None):
