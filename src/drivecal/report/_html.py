@@ -107,7 +107,7 @@ def _statistics_html(fit: Mapping[str, Any]) -> str:
         ("fitted parameters n", f"{len(fit['names'])} ({', '.join(fit['names'])})"),
         ("degrees of freedom m - n", fit.get("dof", "")),
         ("sigma_hat [A]", _fmt(fit["sigma_hat"])),
-        ("stated sensor noise [A]", _fmt(res.get("sigma_stated"))),
+        ("sensor noise checked against [A]", _noise_row(res)),
         ("RSS [A^2]", _fmt(fit.get("rss"))),
         ("identifiability", f"rank {ident['rank']}/{ident.get('num_params', len(fit['parameters']))}, "
                             f"condition number {_fmt(ident['condition_number'], '.3g')}"),
@@ -115,6 +115,17 @@ def _statistics_html(fit: Mapping[str, Any]) -> str:
          f"{'yes' if res['white'] else 'NO'} (each p >= {res['whiteness_p_threshold']:.2g} required)"),
     ]
     return _kv_table(rows, "stats")
+
+
+def _noise_row(res: Mapping[str, Any]) -> str:
+    """The noise sigma_hat was checked against and where it came from, or why the check was off."""
+    if not res:
+        return "-"
+    if res.get("sigma_stated") is None:
+        return f"none: the noise check is off ({res.get('noise_check_off') or 'no sensor noise was stated'})"
+    how = "estimated from the samples" if res.get("sigma_estimated") else "stated"
+    source = f", {res['sigma_source']}" if res.get("sigma_source") else ""
+    return f"{_fmt(res['sigma_stated'])} ({how}{source})"
 
 
 def _plan_html(plan: Mapping[str, Any] | None) -> str:
