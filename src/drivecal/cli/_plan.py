@@ -104,7 +104,9 @@ def _print_plan(report, out, console: Console) -> None:
     duration = sum(s.duration for s in plan.segments)
     console.print(f"[bold]wrote {out}[/bold]: {len(plan.segments)} segments, {duration:.4g} s, {plan.num_samples} "
                   f"samples at {plan.sample_rate:g} Hz; voltage limit {plan.voltage_limit:.4g} V, current limit "
-                  f"{plan.current_limit:g} A; sensor noise {ident.noise_sigma * 1e3:.4g} mA (recorded as current_noise)")
+                  f"{plan.current_limit:g} A")
+    console.print(f"sensor noise {ident.noise_sigma * 1e3:.4g} mA, recorded as the plan's current_noise: `drivecal "
+                  "design` and `simulate` use it")
     seg_table = Table(title="segments, predicted on the nominal motor", title_justify="left")
     for col in ("segment", "rotor", "duration [s]", "v_d [V]", "v_q [V]", "peak |i_dq| [A]", "peak w_m [rad/s]"):
         seg_table.add_column(escape(col), justify="left" if col in ("segment", "rotor") else "right", no_wrap=True)
