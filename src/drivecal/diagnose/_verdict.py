@@ -169,8 +169,9 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
                        f"sigma_hat is {res['sigma_ratio']:.2f} times it; no noise was stated (give --noise or the "
                        "motor file's current_noise to check against the sensor's own)")
     if res and res.get("sigma_stated") is None:
-        details.append(f"noise check off: {res.get('noise_check_off') or 'no sensor noise was stated'}; only the "
-                       "residuals' whiteness is judged (give --noise or the motor file's current_noise)")
+        details.append(f"noise check off: {res.get('noise_check_off') or 'no sensor noise was stated'}; sigma_hat "
+                       "is not judged, only the residuals' whiteness and the bench-effect tests (give --noise or the "
+                       "motor file's current_noise)")
     if res and not res.get("white", True):
         mismatch = True
         bad = [f"{s['name']} {ax}" for s in res["per_segment"] for ax in ("i_d", "i_q")
