@@ -141,6 +141,8 @@ def test_cli_design_optimize_writes_a_plan_that_passes_design(tmp_path, capsys, 
     loaded = dc.load_plan(out)
     assert loaded.num_samples == 1400 and [s.name for s in loaded.segments] == [
         s.name for s in optimal.plan_after.segments]
+    # It records the noise it was judged at (the default: the input plan records none), for design and simulate.
+    assert loaded.current_noise == 0.02 and doc["noise_source"] == "default; no current_noise in the plan"
 
 
 @pytest.mark.parametrize("argv, message", [

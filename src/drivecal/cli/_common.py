@@ -124,6 +124,21 @@ def _predicted_cells(nominal: float, half: float, unit: str) -> tuple[str, str, 
     return shown or "-", format_value(nominal, scale), format_value(half, scale, half), relative
 
 
+#: The current-sensor noise [A] `design` and `simulate` assume where neither --noise nor the plan states one.
+DEFAULT_NOISE = 0.02
+
+
+def _plan_noise(plan, noise: float | None) -> tuple[float, str]:
+    """The current-sensor noise [A] a command uses for ``plan`` and, in words, where it comes from: --noise,
+    else the noise the plan file records (``current_noise``), else :data:`DEFAULT_NOISE`."""
+    if noise is not None:
+        return float(noise), "from --noise"
+    if plan.current_noise is not None:
+        return float(plan.current_noise), "the plan's current_noise"
+    return DEFAULT_NOISE, "default; no current_noise in the plan"
+
+
+
 _MOTOR_HELP = ("Motor file (TOML): nominal R, Ld, Lq, lambda_m (the prior) and fixed pole_pairs, J, B. "
                "Default: the 48 V demo motor.")
 

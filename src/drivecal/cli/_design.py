@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from typing import TYPE_CHECKING
 
 import click
 
 from ..errors import PlanError
-from ._common import _check_out, _console, _load_motor, _motor_option, _predicted_cells, _Positive
+from ._common import _check_out, _console, _load_motor, _motor_option, _plan_noise, _predicted_cells, _Positive
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -17,8 +18,9 @@ if TYPE_CHECKING:
 @click.command("design")
 @click.argument("plan_path", metavar="PLAN.toml", type=click.Path(dir_okay=False))
 @_motor_option
-@click.option("--noise", type=_Positive(), default=0.02, show_default=True,
-              help="Expected current-sensor noise standard deviation [A], for the predicted intervals.")
+@click.option("--noise", type=_Positive(), default=None,
+              help="Expected current-sensor noise standard deviation [A], for the predicted intervals. Default: "
+                   "the plan's current_noise (the noise it was designed for), else 0.02.")
 @click.option("--json", "as_json", is_flag=True, help="Print the assessment JSON on stdout instead of tables.")
 @click.option("--optimize", is_flag=True,
               help="Improve the plan's amplitudes, durations and bands for the smallest predicted confidence "
@@ -39,15 +41,18 @@ def design(plan_path, motor_path, noise, as_json, optimize, budget, out_path):
         inverter-off coast-down's back-EMF stays inside v_dc/sqrt(3),
     then the rank and condition number of the sensitivity Jacobian, dead and
     weak parameters (with the reason), and the 95 % CI half-width each
-    parameter would get at the given noise. Exit status 2 when the plan is
-    infeasible or cannot identify every parameter.
+    parameter would get at the sensor noise: --noise, else the plan's
+    current_noise (the noise it was designed for), else 20 mA; the output
+    says which. Exit status 2 when the plan is infeasible or cannot identify
+    every parameter.
 
     A motor file with a saturating magnetic law (sat_d, sat_q, sat_dq) has
     its peak currents predicted with that law.
 
     With --optimize --out OPT.toml the plan is improved first (D-optimal: the
     smallest predicted confidence volume, same segments, within the limits and
-    --budget) and written to OPT.toml; the predicted intervals before and
+    --budget) and written to OPT.toml, with the noise it was judged at as
+    its current_noise; the predicted intervals before and
     after and the volume ratio are printed. Saturation coefficients to
     estimate that the plan cannot show (one current level on an axis, no d
     and q current together) first get the locked steps `drivecal plan` lays
@@ -65,15 +70,16 @@ def design(plan_path, motor_path, noise, as_json, optimize, budget, out_path):
     from ..plan import load_plan
 
     plan = load_plan(plan_path)
+    noise, noise_source = _plan_noise(plan, noise)
     motor_file = _load_motor(motor_path)
     if motor_file.estimate is not None:
         check_requested(motor_file.names, Experiment.from_plan(plan), plan_path)
     report = assess_design(plan, motor_file.motor, noise_sigma=noise, names=motor_file.names,
                            delay_samples=motor_file.delay_samples)
     if as_json:
-        click.echo(json.dumps(report.to_dict(), indent=2))
+        click.echo(json.dumps({**report.to_dict(), "noise_source": noise_source}, indent=2))
     else:
-        _print_design(report, plan_path, _console(False))
+        _print_design(report, plan_path, _console(False), noise_source)
     if not report.ok:
         what = []
         if report.problems:
@@ -99,6 +105,7 @@ def _design_optimize(plan_path, motor_path, noise, as_json, budget, out_path) ->
     from ..plan import write_plan
 
     plan, specs = load_plan_waveforms(plan_path)
+    noise, noise_source = _plan_noise(plan, noise)
     motor_file = _load_motor(motor_path)
     if motor_file.estimate is not None:
         check_requested(motor_file.names, Experiment.from_plan(plan), plan_path)
@@ -116,15 +123,16 @@ def _design_optimize(plan_path, motor_path, noise, as_json, budget, out_path) ->
               f"budget {result.budget:g} s; predicted confidence volume x{result.volume_ratio:.3g} "
               f"(det of the covariance x{result.det_ratio:.3g}) on the nominal motor, noise {noise:g} A")
     tables = {key: spec for key, spec in result.waveforms_after.items() if isinstance(spec, dict)}
-    write_plan(out, result.plan_after, tables, header=header)
+    # The improved plan records the noise it was optimised and judged at.
+    write_plan(out, dataclasses.replace(result.plan_after, current_noise=noise), tables, header=header)
     if as_json:
         click.echo(json.dumps({"plan": str(plan_path), "out": str(out), "added_segments": list(added),
-                               **result.to_dict()}, indent=2))
+                               **result.to_dict(), "noise_source": noise_source}, indent=2))
         return
-    _print_optimal(result, plan_path, out, console)
+    _print_optimal(result, plan_path, out, console, noise_source)
 
 
-def _print_optimal(result, plan_path, out, console: Console) -> None:
+def _print_optimal(result, plan_path, out, console: Console, noise_source: str) -> None:
     from rich.markup import escape
     from rich.table import Table
 
@@ -158,6 +166,7 @@ def _print_optimal(result, plan_path, out, console: Console) -> None:
         row.append("-" if sa.locked else f"{pb.peak_speed:.4g} -> {pa.peak_speed:.4g}")
         seg_table.add_row(*row)
     console.print(seg_table)
+    console.print(f"sensor noise {result.noise_sigma * 1e3:.4g} mA ({noise_source}); {out} records it as current_noise")
     table = Table(title=f"predicted 95 % CI half-widths at noise {result.noise_sigma * 1e3:g} mA",
                   title_justify="left")
     table.add_column("plan", justify="left", no_wrap=True)
@@ -182,7 +191,7 @@ def _print_optimal(result, plan_path, out, console: Console) -> None:
     console.print(f"wrote {out}")
 
 
-def _print_design(report, plan_path, console: Console) -> None:
+def _print_design(report, plan_path, console: Console, noise_source: str) -> None:
     from rich.markup import escape
     from rich.table import Table
 
@@ -202,6 +211,7 @@ def _print_design(report, plan_path, console: Console) -> None:
     for p in report.problems:
         console.print(f"  [red]problem[/red]: {p}")
     console.print(f"identifiability: {ident.summary(markup=True)}")
+    console.print(f"sensor noise {ident.noise_sigma * 1e3:.4g} mA ({noise_source})")
     table = Table(title=f"predicted 95 % intervals at noise {ident.noise_sigma * 1e3:g} mA", title_justify="left")
     for col in ("parameter", "unit", "nominal", "± 95 % CI", "rel. [%]", "identifiable"):
         justify = "left" if col in ("parameter", "unit", "identifiable") else "right"

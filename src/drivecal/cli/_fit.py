@@ -59,7 +59,8 @@ def _fit_table(cal: Calibration) -> Table:
                    "Default: output when J, B, T_coulomb or T_load are estimated, else input.")
 @click.option("--noise", type=_Positive(), default=None,
               help="The current sensor's noise standard deviation [A], if known: a sigma_hat well above it "
-                   "is reported as model mismatch. Without it only the whiteness of the residuals is judged.")
+                   "is reported as model mismatch. Default: the motor file's current_noise, else the noise "
+                   "estimated from the samples (robust second differences; the verdict says which).")
 @click.option("--estimate", "estimate", default=None, metavar="NAMES",
               help="Comma-separated parameters to estimate, replacing the motor file's 'estimate', e.g. "
                    "R,Ld,Lq,lambda_m,v_dead,offset_d,offset_q (bench effects: v_dead, offset_d, offset_q, "
@@ -156,7 +157,12 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
             from ..maps import flux_maps
 
             maps = flux_maps(cal, bench.currents)
-        payload = build_result(cal, bench, experiment=experiment, noise_sigma=noise, input_path=bench_path,
+        if noise is None and motor_file.current_noise is not None:
+            noise, noise_source = motor_file.current_noise, "the motor file's current_noise"
+        else:
+            noise_source = "--noise"
+        payload = build_result(cal, bench, experiment=experiment, noise_sigma=noise, noise_source=noise_source,
+                               input_path=bench_path,
                                motor_file=motor_path, measured_speed=speed_mode == "input" and bench.has_measured_speed,
                                saturation=saturation.to_dict() if saturation.tested else None,
                                effects=selection.to_dict(), tolerance=motor_file.tolerance,

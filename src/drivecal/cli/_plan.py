@@ -26,7 +26,8 @@ if TYPE_CHECKING:
               help="The bench's sample rate [Hz]. Default: chosen from the motor's time constants.")
 @click.option("--noise", type=_Positive(), default=None,
               help="Expected current-sensor noise standard deviation [A], for the predicted intervals (and "
-                   "the length of the mechanical test). Default: 0.2 % of --imax.")
+                   "the length of the mechanical test); the plan file records it as current_noise, which `drivecal "
+                   "design` and `simulate` then use. Default: 0.2 % of --imax.")
 @click.option("--estimate", "estimate", default=None, metavar="NAMES",
               help="Comma-separated parameters the plan must identify, replacing the motor file's 'estimate' "
                    "(default: R,Ld,Lq,lambda_m); any of J, B, T_coulomb, T_load adds the mechanical test.")
@@ -104,6 +105,8 @@ def _print_plan(report, out, console: Console) -> None:
     console.print(f"[bold]wrote {out}[/bold]: {len(plan.segments)} segments, {duration:.4g} s, {plan.num_samples} "
                   f"samples at {plan.sample_rate:g} Hz; voltage limit {plan.voltage_limit:.4g} V, current limit "
                   f"{plan.current_limit:g} A")
+    console.print(f"sensor noise {ident.noise_sigma * 1e3:.4g} mA, recorded as the plan's current_noise: `drivecal "
+                  "design` and `simulate` use it")
     seg_table = Table(title="segments, predicted on the nominal motor", title_justify="left")
     for col in ("segment", "rotor", "duration [s]", "v_d [V]", "v_q [V]", "peak |i_dq| [A]", "peak w_m [rad/s]"):
         seg_table.add_column(escape(col), justify="left" if col in ("segment", "rotor") else "right", no_wrap=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from ..errors import DrivecalError
-from ._common import _check_out, _console, _load_motor, _motor_option, _Positive
+from ._common import _check_out, _console, _load_motor, _motor_option, _plan_noise, _Positive
 
 #: RK4 steps per carrier period on the switching plant: its step grid holds every switching edge, so 16
 #: already agrees with 64 to ~1e-13 A (tests/bench/test_pwm.py), at a quarter of the run time.
@@ -48,8 +48,9 @@ def _describe(model: str, modulation: str, dead_time: float, device_drop: float,
 @click.command("simulate")
 @click.argument("plan_path", metavar="PLAN.toml", type=click.Path(dir_okay=False))
 @_motor_option
-@click.option("--noise", type=_Positive(), default=0.02, show_default=True,
-              help="Current-sensor noise standard deviation [A] added to i_d and i_q.")
+@click.option("--noise", type=_Positive(), default=None,
+              help="Current-sensor noise standard deviation [A] added to i_d and i_q. Default: the plan's "
+                   "current_noise (the noise it was designed for), else 0.02.")
 @click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True, help="Seed of the sensor noise.")
 @click.option("--speed/--no-speed", "record_speed", default=True, show_default=True,
               help="Also write the measured mechanical speed w_m [rad/s] (an encoder; noise-free).")
@@ -84,7 +85,8 @@ def simulate(plan_path, motor_path, noise, seed, record_speed, model, modulation
     0 (the dead time is physical there).
 
     Currents are sampled at the plan's sample rate and seeded Gaussian noise is
-    added. The file has the bench-file columns (segment, locked, t, v_d, v_q,
+    added: --noise, else the plan's current_noise (the noise it was designed
+    for), else 20 mA; the output says which. The file has the bench-file columns (segment, locked, t, v_d, v_q,
     i_d, i_q, w_m; temperature when the plan sets one) and can be fitted with
     `drivecal fit`.
     """
@@ -95,6 +97,7 @@ def simulate(plan_path, motor_path, noise, seed, record_speed, model, modulation
     from ..plan import load_plan
 
     plan = load_plan(plan_path)
+    noise, noise_source = _plan_noise(plan, noise)
     motor_file = _load_motor(motor_path)
     table = plan.inverter
     model = model or table.model
@@ -136,6 +139,6 @@ def simulate(plan_path, motor_path, noise, seed, record_speed, model, modulation
         bench = bench.add_noise(noise, seed)
         bench.save(out)
     console.print(f"wrote {out}: {bench.num_samples} samples in {len(bench.segments)} segment(s) at "
-                  f"{bench.sample_rate:g} Hz, noise {noise * 1e3:g} mA (seed {seed})")
+                  f"{bench.sample_rate:g} Hz, noise {noise * 1e3:.4g} mA ({noise_source}; seed {seed})")
     if model == "switching":
         console.print(f"ran on the {ran}")

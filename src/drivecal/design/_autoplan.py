@@ -227,7 +227,8 @@ def _segment_samples(times: MotorTimes, fs: float, budget: float | None, runs: i
 
 
 def _plan(levels: _Levels, counts: list[int], v_dc: float, current_limit: float,
-          max_speed: float | None, names: tuple[str, ...] = ESTIMATED) -> Plan:
+          max_speed: float | None, names: tuple[str, ...] = ESTIMATED, noise: float | None = None) -> Plan:
+    """The plan of ``levels`` and sample ``counts``; it records the sensor ``noise`` (A) it was designed for."""
     fs = levels.sample_rate
     k = len(levels.steps)
     mechanics = mechanical_segments(levels.v_spin, names, counts[k + 1:], fs) if mechanical_requested(names) else ()
@@ -239,6 +240,7 @@ def _plan(levels: _Levels, counts: list[int], v_dc: float, current_limit: float,
         v_dc=float(v_dc),
         current_limit=float(current_limit),
         max_speed=None if max_speed is None else float(max_speed),
+        current_noise=noise,
     )
 
 
@@ -281,6 +283,8 @@ def auto_design(
     Args: as :func:`auto_plan`, plus
         noise_sigma: sensor noise (A) for the predicted intervals and the
             mechanical test's length; default :data:`NOISE_FRACTION` of ``current_limit``.
+            The plan records it (``Plan.current_noise``), so its file carries it to
+            ``drivecal design`` and ``drivecal simulate``.
     """
     names = tuple(n for n in ESTIMABLE if n in names)
     _check_inputs(motor, v_dc, current_limit, max_speed, budget, sample_rate, names)
@@ -311,7 +315,7 @@ def auto_design(
         steady = friction_samples(motor, names, levels.v_spin, sigma) if mechanics else 0
         counts = _segment_samples(times, fs, budget, runs, steady, tuple(s.tau for s in levels.steps),
                                   spin=bool(levels.v_spin))
-        plan = _plan(levels, counts, v_dc, current_limit, max_speed, names)
+        plan = _plan(levels, counts, v_dc, current_limit, max_speed, names, sigma)
         return assess_design(plan, motor, noise_sigma=sigma, names=names)
 
     report = judge(levels)

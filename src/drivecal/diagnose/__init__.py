@@ -4,10 +4,10 @@ from .. import _setup  # noqa: F401  (float64 and the compilation cache, before 
 from ._mismatch import (ALPHA, ANGLE_EFFECTS, EFFECTS, MAGNETIC_EFFECTS, Score, effect_signatures,
                         prepare_unmodelled_effects, score_test, unmodelled_effects)
 from ._saturation import LevelEstimate, MIN_LEVEL_RATIO, SaturationCheck, Z_LIMIT, check_saturation
-from ._verdict import SIGMA_RATIO_MAX, residual_checks, verdict
+from ._verdict import NOISE_FLOOR, NOISE_MIN_SAMPLES, SIGMA_RATIO_MAX, estimated_noise, residual_checks, verdict
 from ._whiteness import WHITENESS_ALPHA, WHITENESS_LAGS, ljung_box, null_sf, whiteness_rule
 
-__all__ = ["ALPHA", "ANGLE_EFFECTS", "EFFECTS", "MAGNETIC_EFFECTS", "LevelEstimate", "MIN_LEVEL_RATIO", "SIGMA_RATIO_MAX",
-           "SaturationCheck", "Score", "WHITENESS_ALPHA", "WHITENESS_LAGS", "Z_LIMIT", "check_saturation",
-           "effect_signatures", "ljung_box",
+__all__ = ["ALPHA", "ANGLE_EFFECTS", "EFFECTS", "MAGNETIC_EFFECTS", "LevelEstimate", "MIN_LEVEL_RATIO", "NOISE_FLOOR",
+           "NOISE_MIN_SAMPLES", "SIGMA_RATIO_MAX", "SaturationCheck", "Score", "WHITENESS_ALPHA", "WHITENESS_LAGS",
+           "Z_LIMIT", "check_saturation", "effect_signatures", "estimated_noise", "ljung_box",
            "null_sf", "prepare_unmodelled_effects", "residual_checks", "score_test", "unmodelled_effects", "verdict", "whiteness_rule"]

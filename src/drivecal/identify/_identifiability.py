@@ -195,7 +195,7 @@ class Identifiability:
             dead_params=dead,
             confounded_params=confounded,
             reasons=dict(d.get("reasons", {})),
-            singular_values=tuple(float(s) for s in d.get("singular_values", ())),
+            singular_values=tuple(num(s) for s in d.get("singular_values", ())),  # null: NaN, as the JSON check allows
             sensitivity=tuple(num(sens.get(n)) for n in names),
             fit_names=fit_names,
             noise_sigma=num(d.get("noise_sigma")),

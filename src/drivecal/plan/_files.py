@@ -135,6 +135,7 @@ class PlanSpec(StrictModel):
     v_dc: Volts = 48.0
     current_limit: Amperes = 30.0
     max_speed: quantity("speed") | None = None
+    current_noise: Amperes | None = None
     inverter: InverterSpec = InverterSpec()
     segment: list[SegmentSpec]
 
@@ -158,7 +159,8 @@ def _check_spec(spec: PlanSpec, source: str) -> list[int]:
     """What pydantic's types do not say: signs, names, sample counts; each refusal names its key.
     Returns the number of samples of each segment."""
     for key, unit, example in (("sample_rate", "Hz", "20 kHz"), ("v_dc", "V", "48 V"),
-                               ("current_limit", "A", "30 A"), ("max_speed", "rad/s", "300 rad/s")):
+                               ("current_limit", "A", "30 A"), ("max_speed", "rad/s", "300 rad/s"),
+                               ("current_noise", "A", "20 mA")):
         value = getattr(spec, key)
         if value is not None and not value > 0:
             raise DrivecalError(f"{source}: '{key}' must be positive, got {value:g} {unit}; write e.g. "
@@ -285,7 +287,8 @@ def plan_from_dict(data: dict, source: str = "plan", base: Path | None = None) -
         segments.append(Segment(s.name, s.duration, s.locked, v_d=v_d, v_q=v_q, temperature=s.temperature,
                                 continues=s.continues, inverter=s.inverter))
     plan = Plan(tuple(segments), sample_rate=spec.sample_rate, v_dc=spec.v_dc, current_limit=spec.current_limit,
-                max_speed=spec.max_speed, inverter=Inverter(**spec.inverter.model_dump()))
+                max_speed=spec.max_speed, inverter=Inverter(**spec.inverter.model_dump()),
+                current_noise=spec.current_noise)
     try:
         return plan.check_feasible()
     except DrivecalError as exc:
@@ -333,6 +336,9 @@ def plan_toml(plan: Plan, waveforms_spec: dict[tuple[str, str], dict] | None = N
     ]
     if plan.max_speed is not None:
         lines.append(f"max_speed = {_toml_value(float(plan.max_speed))}    # rad/s")
+    if plan.current_noise is not None:  # not written when not recorded, so older plans round-trip unchanged
+        lines.append(f"current_noise = {_toml_value(float(plan.current_noise))}    # A, the sensor noise the plan "
+                     "was designed for")
     inv = plan.inverter
     if not inv.is_default:  # the averaged, ideal inverter is no table
         lines += ["", "[inverter]    # what `drivecal simulate` runs the plan on",
@@ -376,8 +382,8 @@ def write_plan(path: str | Path, plan: Plan, waveforms_spec: dict[tuple[str, str
 
 
 def plan_to_dict(plan: Plan) -> dict[str, Any]:
-    """A plan as JSON: sample rate (Hz), V_dc (V), current limit (A), segments; the inverter when it is not the
-    averaged, ideal one (dead time in s, device drop in V)."""
+    """A plan as JSON: sample rate (Hz), V_dc (V), current limit (A), segments; the current noise it was designed
+    for (A) when recorded; the inverter when it is not the averaged, ideal one (dead time in s, device drop in V)."""
     segments = []
     for seg in plan.segments:
         entry = {"name": seg.name, "duration": seg.duration, "locked": seg.locked}
@@ -397,6 +403,8 @@ def plan_to_dict(plan: Plan) -> dict[str, Any]:
         "current_limit": plan.current_limit,
         "segments": segments,
     }
+    if plan.current_noise is not None:
+        out["current_noise"] = float(plan.current_noise)
     if not plan.inverter.is_default:
         out["inverter"] = dataclasses.asdict(plan.inverter)
     return out

@@ -164,6 +164,10 @@ class Plan:
             (rad/s), or None for no stated limit.
         inverter: the inverter ``drivecal simulate`` runs the plan on
             (:class:`Inverter`; by default the averaged, ideal one).
+        current_noise: the current sensor's noise standard deviation (A) the
+            plan was designed for, or None when not recorded: ``drivecal design``
+            predicts its intervals at it and ``drivecal simulate`` adds it
+            unless told otherwise.
     """
 
     segments: tuple[Segment, ...]
@@ -172,6 +176,7 @@ class Plan:
     current_limit: float = 30.0
     max_speed: float | None = None
     inverter: Inverter = Inverter()
+    current_noise: float | None = None
 
     @property
     def sample_period(self) -> float:
@@ -191,7 +196,7 @@ class Plan:
     def check_feasible(self) -> Plan:
         """Raise :class:`PlanError` naming the first infeasible segment; return self otherwise.
 
-        Checks: positive sample rate and V_dc, at least one segment, unique names,
+        Checks: positive sample rate and V_dc (and current noise, where recorded), at least one segment, unique names,
         at least two samples per segment, finite voltages, every commanded
         ``|v_dq|`` inside the voltage circle ``v_dc / sqrt(3)``, a first segment
         that does not continue another, inverter-off segments that continue
@@ -202,6 +207,8 @@ class Plan:
             raise PlanError(f"sample_rate must be a positive number of Hz, got {self.sample_rate!r}.")
         if not (self.v_dc > 0 and math.isfinite(self.v_dc)):
             raise PlanError(f"v_dc must be a positive number of volts, got {self.v_dc!r}.")
+        if self.current_noise is not None and not (self.current_noise > 0 and math.isfinite(self.current_noise)):
+            raise PlanError(f"current_noise must be a positive number of amperes, got {self.current_noise!r}.")
         if not self.segments:
             raise PlanError("the plan has no segments; add at least one.")
         self.inverter.check()

@@ -126,13 +126,24 @@ def _statistics_html(fit: Mapping[str, Any]) -> str:
         ("fitted parameters n", f"{len(fit['names'])} ({', '.join(fit['names'])})"),
         ("degrees of freedom m - n", fit.get("dof", "")),
         ("sigma_hat", _quantity(fit["sigma_hat"], "A")),
-        ("stated sensor noise", _quantity(res.get("sigma_stated"), "A")),
+        ("sensor noise checked against", _noise_row(res)),
         ("RSS [A^2]", _fmt(fit.get("rss"))),
         ("identifiability", Identifiability.from_dict(ident).summary()),
         ("residuals white (Ljung-Box)", "-" if not res else
          f"{'yes' if res['white'] else 'NO'} (each p >= {res['whiteness_p_threshold']:.2g} required)"),
     ]
     return _kv_table(rows, "stats")
+
+
+def _noise_row(res: Mapping[str, Any]) -> str:
+    """The noise sigma_hat was checked against and where it came from, or why the check was off."""
+    if not res:
+        return "-"
+    if res.get("sigma_stated") is None:
+        return f"none: the noise check is off ({res.get('noise_check_off') or 'no sensor noise was stated'})"
+    how = "estimated from the samples" if res.get("sigma_estimated") else "stated"
+    source = f", {res['sigma_source']}" if res.get("sigma_source") else ""
+    return f"{_quantity(res['sigma_stated'], 'A')} ({how}{source})"
 
 
 def _plan_html(plan: Mapping[str, Any] | None) -> str:

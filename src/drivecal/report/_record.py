@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..data import BenchData, Tolerance
-from ..diagnose import residual_checks, unmodelled_effects, verdict
+from ..diagnose import estimated_noise, residual_checks, unmodelled_effects, verdict
 from ..maps import flux_maps
 from ..model import Experiment, model_experiment, predicted_currents
 from ..physics import MAGNETIC, is_saturating
@@ -63,6 +63,7 @@ def build_result(
     plan: Plan | None = None,
     experiment: Experiment | None = None,
     noise_sigma: float | None = None,
+    noise_source: str = "stated",
     input_path: str | os.PathLike | None = None,
     input_sha256: str | None = None,
     motor_file: str | os.PathLike | None = None,
@@ -81,7 +82,10 @@ def build_result(
         experiment: the experiment the fit used, if not ``bench.experiment()``
             (e.g. with measured speed as an input): the predictions must match the fit.
         noise_sigma: the stated current-sensor noise (A) the residuals are
-            judged against; None when unknown (then only their whiteness is judged).
+            judged against; None when unknown: then against the noise estimated from
+            the samples (``drivecal.diagnose.estimated_noise``), and where that cannot
+            be estimated only their whiteness is judged (the verdict says why).
+        noise_source: where ``noise_sigma`` comes from, in words (e.g. ``"--noise"``).
         input_path: the bench file; its bytes are hashed unless ``input_sha256`` is given.
         input_sha256: hash of the input; default the file's, or the bench data's.
         motor_file: path of the motor TOML the prior came from.
@@ -94,8 +98,13 @@ def build_result(
             computed here over the bench's currents where the calibrated law saturates.
     """
     segments = segment_traces(calibration, bench, experiment)
-    stated = float(noise_sigma) if noise_sigma is not None else None
-    residuals = residual_checks(segment_residuals(segments), float(calibration.sigma_hat), stated)
+    if noise_sigma is not None:
+        stated, source, why_off = float(noise_sigma), noise_source, None
+    else:  # judged against the noise in the samples, or the check is off and the verdict says why
+        stated, how = estimated_noise(bench)
+        source, why_off = (how, None) if stated is not None else (None, how)
+    residuals = residual_checks(segment_residuals(segments), float(calibration.sigma_hat), stated,
+                                sigma_source=source, estimated=noise_sigma is None, noise_check_off=why_off)
     if bool(calibration.converged):
         used = bench.experiment(delay_samples=calibration.delay_samples) if experiment is None else experiment
         residuals["unmodelled_effects"] = unmodelled_effects(

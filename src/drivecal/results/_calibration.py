@@ -224,7 +224,7 @@ class Calibration:
         names = tuple(params)
         fit_names = tuple(d["names"])
         ci = [params[n].get("ci95") or [None, None] for n in names]
-        if "prior" in d:
+        if d.get("prior") is not None:  # null: rebuilt from the parameters, as the JSON check allows
             prior = MotorParams(**{k: float(v) for k, v in d["prior"].items()})
         else:
             prior = MotorParams(**{**{n: params[n]["prior"] for n in names},

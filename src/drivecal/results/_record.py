@@ -433,6 +433,8 @@ def _validate_sections(c: _Check, d: dict, prefix: str) -> None:
     residuals = c.obj(d.get("residuals"), f"{prefix}residuals", null=True) or {}
     for k in ("sigma_ratio", "sigma_stated", "sigma_hat"):
         c.num(residuals.get(k), f"{prefix}residuals.{k}")
+    for k in ("sigma_source", "noise_check_off"):  # absent from results saved before they were recorded
+        c.string(residuals.get(k), f"{prefix}residuals.{k}", null=True)
     effects = c.lst(residuals.get("unmodelled_effects"), f"{prefix}residuals.unmodelled_effects", null=True) or []
     for i, e in enumerate(effects):
         c.obj(e, f"{prefix}residuals.unmodelled_effects[{i}]")
