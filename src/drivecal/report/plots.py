@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 import numpy as np
 
 from .. import _figures
+from .._figures import plt  # noqa: F401  (pyplot on the Agg backend, for the fleet report's figures)
 from ..physics import UNITS
 
 if TYPE_CHECKING:
