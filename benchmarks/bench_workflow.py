@@ -58,7 +58,8 @@ CASES = (
     ("drivecal simulate default_plan.toml", ["simulate", str(EXAMPLES / "default_plan.toml"), "--out",
                                              "{out}.csv"], "warm"),
     ("drivecal design default_plan.toml", ["design", str(EXAMPLES / "default_plan.toml")], "warm"),
-    ("drivecal plan", ["plan"], "warm"),
+    ("drivecal plan --motor motor.toml", ["plan", "--motor", str(EXAMPLES / "motor.toml"), "--vdc", "48", "--imax", "30",
+                                          "--out", "{out}.toml"], "warm"),
     ("drivecal --help", ["--help"], "warm"),
     ("drivecal --version", ["--version"], "warm"),
 )
@@ -136,10 +137,14 @@ def main() -> None:
             if args.only and args.only not in label:
                 continue
             samples = {}
-            for name, src in trees.items():
-                status.update(f"{label} ({kind}, {name})")
-                samples[name] = time_case(src, case, kind, args.cold_runs if kind == "cold" else args.runs,
-                                          caches[name])
+            try:
+                for name, src in trees.items():
+                    status.update(f"{label} ({kind}, {name})")
+                    samples[name] = time_case(src, case, kind, args.cold_runs if kind == "cold" else args.runs,
+                                              caches[name])
+            except SystemExit as exc:  # one command failing costs its row, not the run
+                console.print(f"[red]{escape(label)} ({kind}) failed[/red]: {escape(str(exc))[:300]}")
+                continue
             base, now = (statistics.median(samples[n]) for n in trees)
             rows.append({"command": label, "cache": kind, "baseline_median_s": base, "now_median_s": now,
                          "baseline_over_now": base / now, "now_over_tutorial": now / t_tutorial,

@@ -116,8 +116,13 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
       7  inconclusive (an interval straddles a limit; the advice says what
          would decide)     4, 5  not calibrated (the verdict's status)
     """
+    renderer = None
     if out_dir is not None:
         _check_out(out_dir, "--out", directory=True)
+        from .._figures import FigureRenderer
+
+        renderer = FigureRenderer().start()  # the figure workers load matplotlib while the fit runs
+        click.get_current_context().call_on_close(renderer.close)
     from rich.markup import escape
 
     from ..data import load_bench
@@ -168,7 +173,7 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
                                effects=selection.to_dict(), tolerance=motor_file.tolerance,
                                flux_maps=None if maps is None else maps.to_dict())
         if out_dir is not None:
-            written = _write_fit_outputs(cal, payload, out_dir)
+            written = _write_fit_outputs(cal, payload, out_dir, renderer)
     status = Status(payload["verdict"]["status"])
     exit_code = _exit_code(status, payload.get("spec"))
     if as_json:
@@ -270,8 +275,7 @@ def _estimate_names(text: str) -> tuple[str, ...]:
     return names
 
 
-def _write_fit_outputs(cal, payload, out_dir):
-    from .._figures import FigureRenderer
+def _write_fit_outputs(cal, payload, out_dir, renderer):
     from .._io import prepare_output_dir, write_bytes, write_json
     from ..report import plots, write_html_report
 
@@ -282,11 +286,10 @@ def _write_fit_outputs(cal, payload, out_dir):
         "estimates.png": plots.estimates_job(cal),
         "identifiability.png": plots.identifiability_job({cal.source: cal.identifiability}),
     }
-    with FigureRenderer() as renderer:
-        pending = {name: renderer.submit(kind, kwargs, dpi=110) for name, (kind, kwargs) in jobs.items()}
-        write_json(out / "report.json", payload)
-        write_html_report(payload, out / "report.html", renderer=renderer)
-        for name, job in pending.items():
-            write_bytes(out / name, job.result())
-            written.append(out / name)
+    pending = {name: renderer.submit(kind, kwargs, dpi=110) for name, (kind, kwargs) in jobs.items()}
+    write_json(out / "report.json", payload)
+    write_html_report(payload, out / "report.html", renderer=renderer)
+    for name, job in pending.items():
+        write_bytes(out / name, job.result())
+        written.append(out / name)
     return written + [out / "report.json", out / "report.html"]

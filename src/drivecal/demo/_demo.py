@@ -135,16 +135,15 @@ def write_demo_outputs(result: DemoResult, out_dir: str | Path, renderer=None) -
     The HTML is rendered from the JSON document exactly as saved (passed
     through ``json``), so ``drivecal report DIR/report.json --html X`` gives
     the same page apart from its time stamp. The figures are drawn in
-    ``renderer``'s worker processes (``drivecal._figures.FigureRenderer``; default:
-    one made here), the PNG files' while the result JSON is built.
+    ``renderer``'s worker processes (a started ``drivecal._figures.FigureRenderer``),
+    the PNG files' while the result JSON is built; without one, in this process.
     """
     from .._figures import FigureRenderer
     from ..report import plots
     from ..report import write_html_report
 
-    if renderer is None:
-        with FigureRenderer() as own:
-            return write_demo_outputs(result, out_dir, own)
+    if renderer is None:  # drawn here: workers pay off when started early, as `drivecal demo --out` does
+        renderer = FigureRenderer(0)
     out = prepare_output_dir(out_dir)
     truth = result.truth.vector(result.default.calibration.names)
     jobs = {}

@@ -243,8 +243,8 @@ def render_html(result: Mapping[str, Any], *, generated: str | None = None, rend
     Args:
         result: one fit's result JSON, or a demo document with ``designs``.
         generated: the time stamp to print (default: now, UTC, ISO 8601).
-        renderer: a started ``drivecal._figures.FigureRenderer`` to draw the figures in (default: one
-            made for this page, its workers closed at the end).
+        renderer: a started ``drivecal._figures.FigureRenderer`` to draw the figures in (default: drawn
+            here, in this process: workers started for one page cost more than they save).
     """
     from .._figures import FigureRenderer
 
@@ -265,11 +265,7 @@ def render_html(result: Mapping[str, Any], *, generated: str | None = None, rend
         overview = f"<h2>Verdicts</h2><ul class='overview'>{items}</ul>"
     jobs = {k: figure_jobs(f, k) for k, f in fits.items()}
     flat = [(name, kwargs, FIG_DPI) for k in fits for _, (name, kwargs) in jobs[k]]
-    if renderer is None:
-        with FigureRenderer() as own:
-            pngs = iter(own.render_all(flat))
-    else:
-        pngs = iter(renderer.render_all(flat))
+    pngs = iter((renderer or FigureRenderer(0)).render_all(flat))
     sections = "".join(fit_section_html(f, k, f"fit-{k}", [(cap, next(pngs)) for cap, _ in jobs[k]])
                        for k, f in fits.items())
     extra = ""
