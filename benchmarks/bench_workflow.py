@@ -119,6 +119,8 @@ def main() -> None:
     parser.add_argument("--baseline-commit", default=BASELINE_COMMIT)
     parser.add_argument("--baseline-dir", type=Path, default=None, help="its worktree (default /tmp/drivecal-wf-COMMIT)")
     parser.add_argument("--only", default=None, help="time only the cases whose label contains this text")
+    parser.add_argument("--results", type=Path, default=RESULTS, help="the JSON file to write")
+    parser.add_argument("--skip-phases", action="store_true", help="skip the cold demo's phase breakdown")
     args = parser.parse_args()
 
     base_dir = args.baseline_dir or Path(f"/tmp/drivecal-wf-{args.baseline_commit}")
@@ -126,7 +128,7 @@ def main() -> None:
     trees = {"baseline": base_dir / "src", "now": ROOT / "src"}
     for src in trees.values():
         check_origin(src)
-    console = Console()
+    console = Console(width=150)
     rows = []
     caches = {name: tempfile.mkdtemp(prefix=f"drivecal-wf-cache-{name}-") for name in trees}
     with console.status("timing...") as status:
@@ -150,7 +152,7 @@ def main() -> None:
                          "baseline_over_now": base / now, "now_over_tutorial": now / t_tutorial,
                          "baseline_samples_s": samples["baseline"], "now_samples_s": samples["now"]})
         status.update("the cold demo, phase by phase")
-        breakdown = {name: phases(src) for name, src in trees.items()}
+        breakdown = {} if args.skip_phases else {name: phases(src) for name, src in trees.items()}
 
     table = Table(title=f"Whole commands, fresh processes: median of {args.runs} warm / {args.cold_runs} cold runs; "
                         f"tutorial workflow {t_tutorial:.1f} s", title_justify="left")
@@ -164,7 +166,20 @@ def main() -> None:
         table.add_row(r["command"], r["cache"], f"{r['baseline_median_s']:.2f}", f"{r['now_median_s']:.2f}",
                       f"{r['baseline_over_now']:.2f}x", f"{r['now_over_tutorial']:.2f}")
     console.print(table)
+    if breakdown:
+        _print_phases(console, breakdown)
 
+    args.results.parent.mkdir(parents=True, exist_ok=True)
+    args.results.write_text(json.dumps({
+        "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": sys.version.split()[0]},
+        "baseline_commit": args.baseline_commit, "runs": args.runs, "cold_runs": args.cold_runs,
+        "tutorial_workflow_s": tutorial, "tutorial_workflow_median_s": t_tutorial,
+        "rows": rows, "cold_demo_phases": breakdown,
+    }, indent=2) + "\n")
+    console.print(f"wrote {args.results}")
+
+
+def _print_phases(console: Console, breakdown: dict) -> None:
     ph = Table(title="The cold demo (`demo --out`, empty cache) phase by phase, one process", title_justify="left")
     ph.add_column("phase", justify="left")
     ph.add_column(escape("baseline [s]"), justify="right")
@@ -184,15 +199,6 @@ def main() -> None:
     console.print(kern)
     console.print(f"XLA compilations in the cold demo: baseline {breakdown['baseline']['compiles']}, "
                   f"now {breakdown['now']['compiles']}")
-
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps({
-        "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": sys.version.split()[0]},
-        "baseline_commit": args.baseline_commit, "runs": args.runs, "cold_runs": args.cold_runs,
-        "tutorial_workflow_s": tutorial, "tutorial_workflow_median_s": t_tutorial,
-        "rows": rows, "cold_demo_phases": breakdown,
-    }, indent=2) + "\n")
-    console.print(f"wrote {RESULTS.relative_to(ROOT)}")
 
 
 if __name__ == "__main__":
