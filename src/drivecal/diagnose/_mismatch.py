@@ -154,7 +154,7 @@ def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment
 
 def prepare_unmodelled_effects(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
                                effects: tuple[str, ...]) -> None:
-    """Trace and compile now what :func:`unmodelled_effects` will run for these effects; compute nothing else.
+    """Trace and compile now the kernel :func:`unmodelled_effects` will run for these effects (run once here, discarded).
 
     The score tests' sensitivity columns are the largest kernel of a first fit (seconds to
     compile); ``select_effects`` calls this in a thread while the base fit compiles, so the two
