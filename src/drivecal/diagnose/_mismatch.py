@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+import jax
 import numpy as np
 
 from .._stats import chi2_sf
@@ -152,6 +153,10 @@ def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment
     return jac[:, : len(fit_names)], columns
 
 
+#: What :func:`prepare_unmodelled_effects` has compiled in this process.
+_PREPARED: set = set()
+
+
 def prepare_unmodelled_effects(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
                                effects: tuple[str, ...]) -> None:
     """Trace and compile now the kernel :func:`unmodelled_effects` will run for these effects (run once here, discarded).
@@ -162,7 +167,10 @@ def prepare_unmodelled_effects(motor: MotorParams, fit_names: tuple[str, ...], e
     are fitted and probed, not on their values: the later call at the fitted motor finds it ready.
     """
     plain = tuple(e for e in effects if e not in MAGNETIC_EFFECTS)
-    if plain:
+    leaves, tree = jax.tree_util.tree_flatten(experiment)
+    key = (tuple(fit_names), plain, tree, tuple(np.shape(x) for x in leaves))
+    if plain and key not in _PREPARED:  # once per kernel in a process (a batch's flagged motors share one)
+        _PREPARED.add(key)
         # as a fit returns it: the fitted parameters as float64 arrays (a Python float would trace as a weak type)
         motor = with_experiment_delay(motor.with_vector(tuple(fit_names), motor.vector(tuple(fit_names))), experiment)
         effect_signatures(motor, tuple(fit_names), model_experiment(experiment, motor, tuple(fit_names)), plain)
