@@ -30,3 +30,16 @@ def assert_one_sentence(code, err, *needles):
     assert "Traceback" not in err
     for needle in needles:
         assert needle in lines[0], (needle, lines[0])
+
+
+def assert_plan_refused(document: dict, *needles: str, source: str = "p.toml") -> None:
+    """``plan_from_dict(document)`` refuses in one sentence that starts with ``source`` and holds every needle."""
+    from drivecal.errors import DrivecalError
+    from drivecal.plan import plan_from_dict
+
+    with pytest.raises(DrivecalError) as info:
+        plan_from_dict(document, source=source)
+    message = str(info.value)
+    assert message.startswith(f"{source}: ") and "\n" not in message
+    for needle in needles:
+        assert needle in message, (needle, message)
