@@ -2,18 +2,18 @@
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
 from .._units import parse_quantity, read_toml
-from ._files import (ChirpSpec, InverterSpec, MultisineSpec, PlanSpec, PrbsSpec, SamplesSpec, SegmentSpec, StepSpec,
-                     load_plan, plan_from_dict, plan_to_dict, plan_toml, write_plan)
+from ._files import (ChirpSpec, InverterSpec, MultisineSpec, PlanSpec, PrbsSpec, RampSpec, SamplesSpec, SegmentSpec,
+                     StepSpec, load_plan, plan_from_dict, plan_to_dict, plan_toml, write_plan)
 from ._plan import (INVERTER_MODELS, INVERTER_MODULATIONS, Inverter, Plan, Segment, default_plan,
                     inverter_setting_error, locked_q_step_plan)
-from ._waveforms import (FLAT_SWEEP_RATE, GENERATORS, chirp, maximal_length_sequence, multisine, prbs, samples,
-                         schroeder_tones, step)
+from ._waveforms import (FLAT_SWEEP_RATE, GENERATORS, chirp, maximal_length_sequence, multisine, prbs, ramp,
+                         samples, schroeder_tones, step)
 from . import _waveforms as waveforms
 
 __all__ = ["ChirpSpec", "FLAT_SWEEP_RATE", "GENERATORS", "INVERTER_MODELS", "INVERTER_MODULATIONS", "Inverter",
            "inverter_setting_error",
-           "InverterSpec", "MultisineSpec", "Plan", "PlanSpec", "PrbsSpec",
+           "InverterSpec", "MultisineSpec", "Plan", "PlanSpec", "PrbsSpec", "RampSpec",
            "SamplesSpec", "Segment", "SegmentSpec", "StepSpec", "chirp", "default_plan", "load_plan",
            "locked_q_step_plan", "maximal_length_sequence", "multisine", "parse_quantity", "plan_from_dict",
-           "plan_to_dict", "plan_toml", "prbs", "read_toml", "samples", "schroeder_tones", "step", "waveforms",
+           "plan_to_dict", "plan_toml", "prbs", "ramp", "read_toml", "samples", "schroeder_tones", "step", "waveforms",
            "write_plan"]

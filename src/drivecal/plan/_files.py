@@ -36,6 +36,16 @@ class StepSpec(StrictModel):
     delay: Seconds = 0.0
 
 
+class RampSpec(StrictModel):
+    """``initial`` before ``delay``, then a straight line to ``level`` over ``rise``, ``level`` after."""
+
+    kind: Literal["ramp"]
+    level: Volts
+    rise: Seconds
+    initial: Volts = 0.0
+    delay: Seconds = 0.0
+
+
 class ChirpSpec(StrictModel):
     kind: Literal["chirp"]
     amplitude: Volts
@@ -74,7 +84,7 @@ class SamplesSpec(StrictModel):
 
 
 #: The waveform kinds of a ``[segment.v_d]`` / ``[segment.v_q]`` table.
-KINDS = ("step", "chirp", "multisine", "prbs", "samples")
+KINDS = ("step", "ramp", "chirp", "multisine", "prbs", "samples")
 
 
 def _no_kind(table: dict) -> dict:
@@ -100,6 +110,7 @@ Axis = Annotated[
     Union[
         Annotated[Volts, Tag("<voltage>")],
         Annotated[StepSpec, Tag("<step>")],
+        Annotated[RampSpec, Tag("<ramp>")],
         Annotated[ChirpSpec, Tag("<chirp>")],
         Annotated[MultisineSpec, Tag("<multisine>")],
         Annotated[PrbsSpec, Tag("<prbs>")],
@@ -135,6 +146,7 @@ class PlanSpec(StrictModel):
     v_dc: Volts = 48.0
     current_limit: Amperes = 30.0
     max_speed: quantity("speed") | None = None
+    max_torque: quantity("torque") | None = None
     current_noise: Amperes | None = None
     inverter: InverterSpec = InverterSpec()
     segment: list[SegmentSpec]
@@ -160,7 +172,7 @@ def _check_spec(spec: PlanSpec, source: str) -> list[int]:
     Returns the number of samples of each segment."""
     for key, unit, example in (("sample_rate", "Hz", "20 kHz"), ("v_dc", "V", "48 V"),
                                ("current_limit", "A", "30 A"), ("max_speed", "rad/s", "300 rad/s"),
-                               ("current_noise", "A", "20 mA")):
+                               ("max_torque", "N*m", "50 N*m"), ("current_noise", "A", "20 mA")):
         value = getattr(spec, key)
         if value is not None and not value > 0:
             raise DrivecalError(f"{source}: '{key}' must be positive, got {value:g} {unit}; write e.g. "
@@ -209,8 +221,10 @@ def _check_inverter(spec: PlanSpec, source: str) -> None:
 
 
 def _check_waveform(spec, where: str) -> None:
-    if isinstance(spec, StepSpec) and spec.delay < 0:
+    if isinstance(spec, (StepSpec, RampSpec)) and spec.delay < 0:
         raise DrivecalError(f"{where}.delay' must be >= 0, got {spec.delay:g} s.")
+    if isinstance(spec, RampSpec) and not spec.rise > 0:
+        raise DrivecalError(f"{where}.rise' must be positive, got {spec.rise:g} s; write e.g. rise = \"50 ms\".")
     if isinstance(spec, (ChirpSpec, MultisineSpec)) and not math.isfinite(getattr(spec, "phase", 0.0)):
         raise DrivecalError(f"{where}.phase' must be a finite number [rad], got {spec.phase!r}.")
     if isinstance(spec, PrbsSpec) and spec.bit_rate is not None and not spec.bit_rate > 0:
@@ -287,7 +301,7 @@ def plan_from_dict(data: dict, source: str = "plan", base: Path | None = None) -
         segments.append(Segment(s.name, s.duration, s.locked, v_d=v_d, v_q=v_q, temperature=s.temperature,
                                 continues=s.continues, inverter=s.inverter))
     plan = Plan(tuple(segments), sample_rate=spec.sample_rate, v_dc=spec.v_dc, current_limit=spec.current_limit,
-                max_speed=spec.max_speed, inverter=Inverter(**spec.inverter.model_dump()),
+                max_speed=spec.max_speed, max_torque=spec.max_torque, inverter=Inverter(**spec.inverter.model_dump()),
                 current_noise=spec.current_noise)
     try:
         return plan.check_feasible()
@@ -336,6 +350,8 @@ def plan_toml(plan: Plan, waveforms_spec: dict[tuple[str, str], dict] | None = N
     ]
     if plan.max_speed is not None:
         lines.append(f"max_speed = {_toml_value(float(plan.max_speed))}    # rad/s")
+    if plan.max_torque is not None:
+        lines.append(f"max_torque = {_toml_value(float(plan.max_torque))}    # N*m, the rotor clamp's limit")
     if plan.current_noise is not None:  # not written when not recorded, so older plans round-trip unchanged
         lines.append(f"current_noise = {_toml_value(float(plan.current_noise))}    # A, the sensor noise the plan "
                      "was designed for")
@@ -403,6 +419,10 @@ def plan_to_dict(plan: Plan) -> dict[str, Any]:
         "current_limit": plan.current_limit,
         "segments": segments,
     }
+    if plan.max_speed is not None:
+        out["max_speed"] = float(plan.max_speed)
+    if plan.max_torque is not None:
+        out["max_torque"] = float(plan.max_torque)
     if plan.current_noise is not None:
         out["current_noise"] = float(plan.current_noise)
     if not plan.inverter.is_default:

@@ -162,6 +162,8 @@ class Plan:
         current_limit: the bench's peak phase-current limit (A).
         max_speed: highest mechanical speed the bench allows on free segments
             (rad/s), or None for no stated limit.
+        max_torque: the rotor clamp's torque limit (N*m): the largest electrical
+            torque a locked segment may put on it, or None for no stated limit.
         inverter: the inverter ``drivecal simulate`` runs the plan on
             (:class:`Inverter`; by default the averaged, ideal one).
         current_noise: the current sensor's noise standard deviation (A) the
@@ -176,6 +178,7 @@ class Plan:
     current_limit: float = 30.0
     max_speed: float | None = None
     inverter: Inverter = Inverter()
+    max_torque: float | None = None
     current_noise: float | None = None
 
     @property
@@ -207,6 +210,8 @@ class Plan:
             raise PlanError(f"sample_rate must be a positive number of Hz, got {self.sample_rate!r}.")
         if not (self.v_dc > 0 and math.isfinite(self.v_dc)):
             raise PlanError(f"v_dc must be a positive number of volts, got {self.v_dc!r}.")
+        if self.max_torque is not None and not (self.max_torque > 0 and math.isfinite(self.max_torque)):
+            raise PlanError(f"max_torque must be a positive number of N*m, got {self.max_torque!r}.")
         if self.current_noise is not None and not (self.current_noise > 0 and math.isfinite(self.current_noise)):
             raise PlanError(f"current_noise must be a positive number of amperes, got {self.current_noise!r}.")
         if not self.segments:

@@ -42,6 +42,19 @@ def step(n: int, sample_rate: float, *, level: Any, initial: Any = 0.0, delay: f
     return xp.where(_times(n, sample_rate, xp) >= delay - 0.5 / sample_rate, level, initial).astype(float)
 
 
+def ramp(n: int, sample_rate: float, *, level: Any, rise: Any, initial: Any = 0.0, delay: float = 0.0,
+         xp: Any = np) -> Any:
+    """``initial`` (V) until ``delay`` (s), then a straight line to ``level`` (V) over ``rise`` (s), ``level`` after.
+
+    Sample k holds the line's value at ``t_k = k / sample_rate``. An open-loop spin-up on a ramp
+    accelerates the rotor at a steady current instead of the surge of a voltage step.
+    """
+    if _concrete(rise) and not rise > 0:
+        raise PlanError(f"ramp: rise must be a positive time, got {rise} s.")
+    share = xp.clip((_times(n, sample_rate, xp) - delay) / rise, 0.0, 1.0)
+    return initial + (level - initial) * share
+
+
 def chirp(
     n: int,
     sample_rate: float,
@@ -200,4 +213,4 @@ def samples(n: int, sample_rate: float, *, values) -> np.ndarray:
 
 
 #: Waveform kinds by their name in plan files.
-GENERATORS = {"step": step, "chirp": chirp, "multisine": multisine, "prbs": prbs, "samples": samples}
+GENERATORS = {"step": step, "ramp": ramp, "chirp": chirp, "multisine": multisine, "prbs": prbs, "samples": samples}
