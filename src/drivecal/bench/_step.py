@@ -2,8 +2,8 @@
 
 :func:`drivecal.engine_bench` builds a fresh Jaxonomy diagram per segment, so
 every motor pays the engine's compile (seconds) and its run (milliseconds).
-For plans whose segments hold constant voltages (the steps of an auto-plan)
-this module builds each diagram once — a ``Constant`` source, a
+For plans whose segments hold constant voltages or ramps (an auto-plan's steps and spin-up)
+this module builds each diagram once — a held constant-or-ramp source, a
 ``ZeroOrderHold`` and ``jaxonomy.library.drives.PMSM``, as the bench does —
 and passes the motor and the voltage as *context parameters*, which the
 engine's kernel cache takes as traced arguments: the compile is reused across
@@ -40,15 +40,28 @@ from ..plan import Plan, Segment
 
 @functools.lru_cache(maxsize=4)
 def _diagram(locked: bool):
-    """(diagram, its default context, the PMSM, the source) in sample-period time; built once."""
+    """(diagram, its default context, the PMSM, the source) in sample-period time; built once.
+
+    The source holds ``start + (value - start) * clip(k / n_rise, 0, 1)`` at sample ``k``: a constant
+    (``start = value``) or a ramp over ``n_rise`` samples (plan files' ``ramp``), its numbers context
+    parameters.
+    """
     import jax.numpy as jnp
     from jaxonomy import DiagramBuilder
-    from jaxonomy.library import Constant, ZeroOrderHold
+    from jaxonomy.library import SourceBlock, ZeroOrderHold
 
     from ._blocks import pmsm_block
 
+    def held(time, value, start, n_rise):
+        k = jnp.floor(time + 1e-6)  # the sample whose value the hold takes at t = k
+        return start + (value - start) * jnp.clip(k / n_rise, 0.0, 1.0)
+
     builder = DiagramBuilder()
-    source = builder.add(Constant(jnp.zeros(2), name="v_dq"))
+    source = SourceBlock(held, name="v_dq")
+    source.declare_dynamic_parameter("value", jnp.zeros(2))
+    source.declare_dynamic_parameter("start", jnp.zeros(2))
+    source.declare_dynamic_parameter("n_rise", jnp.asarray(1.0))
+    source = builder.add(source)
     hold = builder.add(ZeroOrderHold(1.0, name="pwm_hold"))
     pmsm = builder.add(pmsm_block(MotorParams(), locked=locked, name="pmsm"))
     builder.connect(source.output_ports[0], hold.input_ports[0])
@@ -57,12 +70,21 @@ def _diagram(locked: bool):
     return diagram, diagram.create_context(), pmsm, source
 
 
-def _constant_voltage(segment: Segment, sample_rate: float) -> np.ndarray:
+def _source_values(segment: Segment, sample_rate: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(value, start, n_rise)`` of the held source: the segment's voltages as a constant or as a ramp
+    from ``start`` at sample 0 to ``value`` at sample ``n_rise`` (V, V, samples; ``n_rise`` may be fractional)."""
     v = segment.voltages(sample_rate)
-    if not np.all(v == v[0]):
-        raise PlanError(f"segment '{segment.name}': step_engine_bench needs constant voltages; "
-                        "use drivecal.engine_bench for waveforms.")
-    return v[0]
+    if np.all(v == v[0]):
+        return v[0], v[0], 1.0
+    slope = v[1] - v[0]
+    axis = int(np.argmax(np.abs(slope)))
+    if slope[axis] != 0:
+        n_rise = float((v[-1, axis] - v[0, axis]) / slope[axis])
+        line = v[0] + (v[-1] - v[0]) * np.clip(np.arange(len(v))[:, None] / n_rise, 0.0, 1.0)
+        if n_rise > 0 and np.max(np.abs(line - v)) <= 1e-9 * max(float(np.max(np.abs(v))), 1.0):
+            return v[-1], v[0], n_rise
+    raise PlanError(f"segment '{segment.name}': step_engine_bench needs constant voltages or a ramp; "
+                    "use drivecal.engine_bench for other waveforms.")
 
 
 def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float) -> np.ndarray:
@@ -79,8 +101,9 @@ def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float) -> np
               "J": float(motor.J) * fs**3, "B": float(motor.B) * fs**2, "T_load": float(motor.T_load) * fs}
     ctx = context.with_subcontext(pmsm.system_id, context[pmsm.system_id].with_parameters(
         {k: jnp.asarray(v) for k, v in scaled.items()}))
-    ctx = ctx.with_subcontext(source.system_id, ctx[source.system_id].with_parameter(
-        "value", jnp.asarray(_constant_voltage(segment, sample_rate))))
+    value, start, n_rise = _source_values(segment, sample_rate)
+    ctx = ctx.with_subcontext(source.system_id, ctx[source.system_id].with_parameters(
+        {"value": jnp.asarray(value), "start": jnp.asarray(start), "n_rise": jnp.asarray(n_rise)}))
     t_samples = np.arange(n, dtype=float)
     buffer_length = 16 * span + 64
     for _ in range(3):
@@ -105,18 +128,23 @@ def step_engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = Fa
     """Noise-free bench data of a step plan on the Jaxonomy engine, reusing compiled kernels.
 
     Same result as :func:`drivecal.engine_bench` (to the engine's tolerance,
-    ~1e-9 A) for plans whose segments hold constant ``v_d``, ``v_q``; much
-    faster when many motors run plans of similar length.
+    ~1e-9 A) for plans whose segments hold constant ``v_d``, ``v_q`` or ramp
+    them (an auto-plan's spin-up); much faster when many motors run plans of
+    similar length. It models the motor alone: for the dead time, sensor offsets
+    and the other bench effects use :func:`drivecal.engine_bench`.
 
     Args:
-        plan: the experiment; every segment's voltages constant (V).
+        plan: the experiment; every segment's voltages constant or a ramp (V).
         motor: the true machine (SI units).
         record_speed: also record the mechanical speed ``w_m`` (rad/s).
 
     Raises:
-        PlanError: a segment with time-varying voltage.
+        PlanError: a segment with another time-varying voltage, or a motor with a dead time.
     """
     plan.check_feasible()
+    if float(motor.v_dead) != 0.0:
+        raise PlanError(f"step_engine_bench models no dead time (the motor's v_dead is {float(motor.v_dead):g} V); "
+                        "use drivecal.engine_bench.")
     _quiet_jaxonomy()
     segments = []
     for seg in plan.segments:
