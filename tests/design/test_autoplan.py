@@ -54,7 +54,9 @@ def test_plan_scales_with_the_motor(default_design):
     # 3x the resistance: 3x the step voltage for the same current, a third of the time constants
     stiff = dc.auto_plan(dc.DEFAULT_MOTOR.replace(R=3 * 0.45), v_dc=48.0, current_limit=30.0)
     assert float(stiff.segments[0].v_d) == pytest.approx(3 * float(base.segments[0].v_d))
-    assert stiff.sample_rate > base.sample_rate
+    # the sample rate is the inverter's (10 kHz by default), not the motor's: the steps get shorter instead
+    assert stiff.sample_rate == base.sample_rate == autoplan.DEFAULT_SAMPLE_RATE
+    assert stiff.segments[0].duration < 0.7 * base.segments[0].duration
     # 10x the inductances: ten times slower electrically, locked steps at least 10x as long
     slow = dc.auto_plan(dc.DEFAULT_MOTOR.replace(Ld=3.2e-2, Lq=5.8e-2), v_dc=48.0, current_limit=30.0)
     assert slow.segments[1].duration >= autoplan.LOCKED_TIME_CONSTANTS * 5.8e-2 / 0.45
@@ -89,7 +91,7 @@ def test_impossible_requests_raise_one_clear_sentence(kwargs, fragment):
 
 
 def test_step_engine_bench_equals_engine_bench():
-    """The shared-kernel engine run (time in sample periods) reproduces drivecal.engine_bench."""
+    """The shared-kernel engine run (time in sample periods) reproduces drivecal.engine_bench, ramps included."""
     motor = dc.DEFAULT_MOTOR.replace(Ld=2.5e-5, Lq=4e-5, R=0.05, T_load=0.01)  # fast: a high sample rate
     plan = dc.auto_plan(motor, v_dc=48.0, current_limit=60.0)
     assert plan.sample_rate >= 10_000
@@ -100,9 +102,12 @@ def test_step_engine_bench_equals_engine_bench():
     for a, b in zip(fast.segments, ref.segments):
         np.testing.assert_array_equal(a.t, b.t)
         np.testing.assert_allclose(a.w_m, b.w_m, rtol=0, atol=1e-8 * max(1.0, np.abs(b.w_m).max()))
-    waveform = dc.Plan((dc.Segment("chirp", 0.01, True, v_d=np.linspace(0, 1, 200)),), sample_rate=20_000)
-    with pytest.raises(dc.PlanError, match="constant voltages"):
+    assert plan.segments[-1].v_q.ndim == 1  # the spin-up's ramp runs on the shared kernel too
+    waveform = dc.Plan((dc.Segment("chirp", 0.01, True, v_d=np.sin(np.linspace(0, 9, 200))),), sample_rate=20_000)
+    with pytest.raises(dc.PlanError, match="constant voltages or a ramp"):
         dc.step_engine_bench(waveform, motor)
+    with pytest.raises(dc.PlanError, match="no dead time"):
+        dc.step_engine_bench(plan, motor.replace(v_dead=0.5))
 
 
 # --- command line ------------------------------------------------------------------------------

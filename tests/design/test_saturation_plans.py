@@ -9,6 +9,7 @@ saturation names the plans are those of before.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -119,14 +120,22 @@ def test_saturating_pm_motor_plan_is_predicted_with_its_law_and_stays_under_the_
 
 
 def test_plans_without_saturation_names_are_unchanged():
-    """The seed motor's default auto-plan, exactly as before saturation plans existed."""
-    plan = dc.auto_plan(dc.DEFAULT_MOTOR, v_dc=48.0, current_limit=SEED_LIMIT)
-    assert (plan.sample_rate, plan.v_dc, plan.current_limit, plan.max_speed) == (3200.0, 48.0, 30.0, None)
-    assert [(s.name, s.duration, s.locked, float(s.v_d), float(s.v_q), s.continues) for s in plan.segments] == [
-        ("locked d-step", 0.09875, True, 6.75, 0.0, False),
-        ("locked q-step", 0.1225, True, 0.0, 6.75, False),
-        ("free spin-up", 0.09875, False, 0.0, 13.358892759263297, False),
+    """The seed motor's default auto-plan, exactly: the saturation steps leave it alone.
+
+    (Since issue 22 it runs at a real inverter's 10 kHz, not 3.2 kHz, and spins up on a ramp to
+    60 % of the no-load speed instead of a voltage step: the expectation was updated then.)
+    """
+    report = auto_design(dc.DEFAULT_MOTOR, v_dc=48.0, current_limit=SEED_LIMIT)
+    plan = report.plan
+    assert (plan.sample_rate, plan.v_dc, plan.current_limit, plan.max_speed) == (10_000.0, 48.0, 30.0, None)
+    assert [(s.name, s.duration, s.locked, float(s.v_d), float(np.ravel(s.v_q)[-1]), s.continues)
+            for s in plan.segments] == [
+        ("locked d-step", 0.0625, True, 6.75, 0.0, False),
+        ("locked q-step", 0.1134, True, 0.0, 6.75, False),
+        ("free spin-up", 0.2337, False, 0.0, 16.62768775266122, False),
     ]
+    assert report.waveforms == {("free spin-up", "v_q"): {"kind": "ramp", "level": 16.62768775266122,
+                                                           "rise": 0.041583816825597704}}
 
 
 @pytest.mark.slow  # a saturating engine bench run (~10 s) and a compile
@@ -162,7 +171,12 @@ def test_plan_cli_with_saturation_names_runs_safely_on_a_saturating_bench(tmp_pa
 def test_with_saturation_steps_adds_what_the_law_needs_before_the_free_segments():
     law = dc.DEFAULT_MOTOR.replace(**SEED_LAW)
     names = dc.ESTIMATED + MAGNETIC
-    base = dc.auto_plan(dc.DEFAULT_MOTOR, v_dc=48.0, current_limit=SEED_LIMIT)
+    # The auto-plan with a voltage-step spin-up (as auto-plan made it before issue 22): its ramp spin-up sweeps
+    # the currents through many levels on both axes and hides nothing from identify.
+    ramped = dc.auto_plan(dc.DEFAULT_MOTOR, v_dc=48.0, current_limit=SEED_LIMIT)
+    assert with_saturation_steps(ramped, law, names)[1] == ()
+    spin = ramped.segments[-1]
+    base = dataclasses.replace(ramped, segments=ramped.segments[:-1] + (dataclasses.replace(spin, v_q=13.36),))
     plan, added = with_saturation_steps(base, law, names)
     # One level per axis before: three more on each; the spin-up already carries d and q current together.
     assert len(added) == 6 and not any("dq" in name for name in added)

@@ -100,6 +100,27 @@ class _Positive(click.ParamType):
         return x
 
 
+class _Quantity(click.ParamType):
+    """A number >= 0 (> 0 if ``positive``) in SI units, or a number with a unit of the kind (``1e-6``, ``"1 us"``,
+    ``"0.7 V"``)."""
+
+    def __init__(self, kind: str, unit: str, positive: bool = False):
+        self.kind, self.unit, self.name, self.positive = kind, unit, f"{kind} [{unit}]", positive
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, float):
+            return value
+        from .._units import parse_quantity
+
+        try:
+            x = parse_quantity(value, self.kind)
+        except ValueError as exc:
+            self.fail(str(exc), param, ctx)
+        if not x >= 0 or (self.positive and not x > 0):
+            self.fail(f"{value!r} must be {'> 0' if self.positive else '>= 0'} {self.unit}", param, ctx)
+        return x
+
+
 @click.group(cls=_LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="drivecal")
 def cli():

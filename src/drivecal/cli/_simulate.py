@@ -5,33 +5,13 @@ from __future__ import annotations
 import click
 
 from ..errors import DrivecalError
-from ._common import _check_out, _console, _load_motor, _motor_option, _plan_noise, _Positive
+from ._common import _check_out, _console, _load_motor, _motor_option, _plan_noise, _Positive, _Quantity
 
 #: RK4 steps per carrier period on the switching plant: its step grid holds every switching edge, so 16
 #: already agrees with 64 to ~1e-13 A (tests/bench/test_pwm.py), at a quarter of the run time.
 SUBSTEPS = 16
 #: Motor-file bench effects the switching plant leaves to its own inverter model or does not have.
 _AVERAGED_ONLY = ("v_dead", "offset_d", "offset_q", "offset_a", "offset_b")
-
-
-class _Quantity(click.ParamType):
-    """A number >= 0 in SI units, or a number with a unit of the kind (``1e-6``, ``"1 us"``, ``"0.7 V"``)."""
-
-    def __init__(self, kind: str, unit: str):
-        self.kind, self.unit, self.name = kind, unit, f"{kind} [{unit}]"
-
-    def convert(self, value, param, ctx):
-        if isinstance(value, float):
-            return value
-        from .._units import parse_quantity
-
-        try:
-            x = parse_quantity(value, self.kind)
-        except ValueError as exc:
-            self.fail(str(exc), param, ctx)
-        if not x >= 0:
-            self.fail(f"{value!r} must be >= 0 {self.unit}", param, ctx)
-        return x
 
 
 def _describe(model: str, modulation: str, dead_time: float, device_drop: float, delay: float) -> str:

@@ -2,6 +2,10 @@
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
 from ._assess import DesignReport, MAX_ELECTRICAL_STEP, SegmentPrediction, assess_design, predict_segments
+from ._bench_limits import (DEAD_TIME_MARGIN, DEFAULT_DEAD_TIME, DEFAULT_SAMPLE_RATE, SAMPLE_RATES,
+                            SPIN_SPEED_FRACTION, TORQUE_MARGIN, BenchLimits, choose_sample_rate, clamp_current,
+                            dead_time_drop, expected_dead_voltage, expected_dead_width,
+                            min_durations)
 from ._autoplan import (CURRENT_MARGIN, LOCKED_TIME_CONSTANTS, MAX_SAMPLE_RATE, MIN_LOCKED_TIME_CONSTANTS,
                         MIN_SAMPLES_PER_TIME_CONSTANT, MIN_SAMPLE_RATE, MIN_SEGMENT_SAMPLES, MIN_SPIN_TIME_CONSTANTS,
                         MotorTimes, NOISE_FRACTION, PLAN_MAX_ELECTRICAL_STEP, SAMPLES_PER_TIME_CONSTANT,
@@ -15,7 +19,10 @@ from ._saturation_plan import (COMBINED_SIGNS, SATURATED_INDUCTANCE_FRACTION, SA
 from ._optimal import (LIMIT_MARGIN, PEAK_WINDOW_SHARPNESS, SCALE_SHARPNESS, SOFTMAX_SHARPNESS, OptimalDesign,
                        optimize_plan, predicted_covariance, speed_limit)
 
-__all__ = ["COMBINED_SIGNS", "CURRENT_MARGIN", "DesignReport", "FRICTION_SE", "LIMIT_MARGIN", "LOCKED_TIME_CONSTANTS",
+__all__ = ["BenchLimits", "COMBINED_SIGNS", "CURRENT_MARGIN", "DEAD_TIME_MARGIN", "DEFAULT_DEAD_TIME",
+           "DEFAULT_SAMPLE_RATE", "SAMPLE_RATES", "SPIN_SPEED_FRACTION", "TORQUE_MARGIN", "choose_sample_rate",
+           "clamp_current", "dead_time_drop", "expected_dead_voltage", "expected_dead_width", "min_durations",
+           "DesignReport", "FRICTION_SE", "LIMIT_MARGIN", "LOCKED_TIME_CONSTANTS",
            "LOW_SPEED_FRACTION", "MAX_ELECTRICAL_STEP", "MAX_FRICTION_SAMPLES", "MAX_SAMPLE_RATE",
            "MIN_DURATION_FRACTION", "MIN_LOCKED_TIME_CONSTANTS", "MIN_SAMPLES_PER_TIME_CONSTANT", "MIN_SAMPLE_RATE",
            "MIN_SEGMENT_SAMPLES", "MIN_SPIN_TIME_CONSTANTS", "MotorTimes", "NOISE_FRACTION", "OptimalDesign",

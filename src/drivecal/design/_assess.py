@@ -20,7 +20,7 @@ import numpy as np
 
 from ..model import Experiment, model_experiment, simulate_states
 from ..identify import Identifiability, assess_identifiability
-from ..physics import ESTIMATED, MotorParams
+from ..physics import ESTIMATED, MotorParams, flux_of_currents, is_saturating
 from ..plan import Plan
 from ._saturation_plan import law_verdict, motor_note
 
@@ -38,6 +38,9 @@ class SegmentPrediction:
         peak_electrical_step: largest ``w_e * dt`` (rad), the electrical angle
             swept in one sample period.
         finite: the simulated state stayed finite.
+        peak_torque: largest ``|Te|`` (N*m), ``Te = 1.5 p (lambda_m i_q + (Ld - Lq) i_d i_q)`` (the flux
+            linkages' ``1.5 p (psi_d i_q - psi_q i_d)`` on a saturating motor); on a locked segment the
+            torque the rotor clamp holds.
     """
 
     name: str
@@ -47,6 +50,7 @@ class SegmentPrediction:
     peak_speed: float
     peak_electrical_step: float
     finite: bool
+    peak_torque: float = 0.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,6 +66,10 @@ class DesignReport:
         notes: how the prediction was made and what the plan was sized for, one sentence each
             (the saturating law used; the margin for unknown saturation; a judgement in the
             law's own coefficients).
+        limits: the bench limits an auto-plan was sized for and its margins against them
+            (:class:`~drivecal.design.BenchLimits`), or None for a plan judged as given.
+        waveforms: per ``(segment name, axis)``, the plan-file table of a waveform the plan was
+            built from (an auto-plan's spin-up ramp), for :func:`drivecal.plan.write_plan`.
     """
 
     plan: Plan
@@ -70,6 +78,8 @@ class DesignReport:
     problems: tuple[str, ...]
     identifiability: Identifiability
     notes: tuple[str, ...] = ()
+    limits: Any = None
+    waveforms: dict = dataclasses.field(default_factory=dict)
 
     @property
     def feasible(self) -> bool:
@@ -98,7 +108,9 @@ class DesignReport:
             "current_limit": self.plan.current_limit,
             "voltage_limit": self.plan.voltage_limit,
             "max_speed": self.plan.max_speed,
+            "max_torque": self.plan.max_torque,
             "notes": list(self.notes),
+            **({"limits": self.limits.to_dict(self)} if self.limits is not None else {}),
         }
 
 
@@ -114,13 +126,23 @@ MAX_ELECTRICAL_STEP = 0.5
 _simulate_states = jax.jit(simulate_states)
 
 
+def _torque(motor: MotorParams, i_d: np.ndarray, i_q: np.ndarray) -> np.ndarray:
+    """Electrical torque (N*m) at the currents: the flux linkages' on a saturating motor, else the dq law's."""
+    p = float(motor.pole_pairs)
+    if is_saturating(motor):
+        psi_d, psi_q = (np.asarray(x) for x in flux_of_currents(i_d, i_q, motor))
+        return 1.5 * p * (psi_d * i_q - psi_q * i_d)
+    return 1.5 * p * (float(motor.lambda_m) * i_q + (float(motor.Ld) - float(motor.Lq)) * i_d * i_q)
+
+
 def predict_segments(plan: Plan, motor: MotorParams) -> tuple[SegmentPrediction, ...]:
     """Simulate the plan on ``motor`` (drivecal's forward model) and summarise each segment."""
     states = np.asarray(_simulate_states(motor, model_experiment(Experiment.from_plan(plan), motor, ())))
+    torque = np.abs(_torque(motor, states[:, 0], states[:, 1]))
     out, k = [], 0
     for seg in plan.segments:
         n = seg.num_samples(plan.sample_rate)
-        x = states[k : k + n]
+        x, te = states[k : k + n], torque[k : k + n]
         k += n
         finite = bool(np.all(np.isfinite(x)))
         current = np.hypot(x[:, 0], x[:, 1])
@@ -137,6 +159,7 @@ def predict_segments(plan: Plan, motor: MotorParams) -> tuple[SegmentPrediction,
                 peak_electrical_step=float(motor.pole_pairs) * float(np.max(speed)) / plan.sample_rate
                 if finite else math.inf,
                 finite=finite,
+                peak_torque=float(np.max(te)) if finite else math.inf,
             )
         )
     return tuple(out)
@@ -154,6 +177,9 @@ def _problems(plan: Plan, motor: MotorParams, segments: tuple[SegmentPrediction,
             problems.append(f"{where}: predicted peak current {s.peak_current:.3g} A at "
                             f"t = {s.peak_current_time:.4g} s exceeds the current limit {plan.current_limit:.3g} A; "
                             "lower the voltage or shorten the segment.")
+        if s.locked and plan.max_torque is not None and s.peak_torque > plan.max_torque:
+            problems.append(f"{where}: the locked rotor's clamp would hold {s.peak_torque:.3g} N*m, above "
+                            f"max_torque {plan.max_torque:.3g} N*m; lower the q-axis voltage of the segment.")
         if not s.locked:
             flux = float(motor.pole_pairs) * float(motor.lambda_m)
             no_load = plan.voltage_limit / flux if flux > 0 else math.inf  # no magnet: no back-EMF limit

@@ -1,27 +1,31 @@
-"""Auto-plan: a feasible, identifiable bench plan scaled to the motor at hand.
+"""Auto-plan: a feasible, identifiable bench plan scaled to the motor at hand and to the bench's real limits.
 
-From the datasheet motor and the bench's limits (DC-link voltage, current
-limit, speed limit, time budget) it builds the standard three segments —
-locked d-step (R, Ld), locked q-step (Lq), free spin-up (lambda_m) — with
+From the datasheet motor and the bench's limits (DC-link voltage, current limit, speed limit, the rotor
+clamp's torque limit, the inverter's sample rate and dead time, time budget) it builds the standard
+segments — locked d-step (R, Ld), locked q-step (Lq), free spin-up (lambda_m) — with the margins of
+``_bench_limits``:
 
-* **amplitudes** from the current limit and R: each step drives a steady
-  current of :data:`STEP_CURRENT_FRACTION` of the limit (``v = i * R``), never
-  more than :data:`VOLTAGE_FRACTION` of the voltage circle ``v_dc / sqrt(3)``;
-  the margins leave room for a datasheet that is 10 % off;
-* **sample rate** from the fastest electrical time constant ``min(Ld, Lq) / R``
-  (at least :data:`SAMPLES_PER_TIME_CONSTANT` samples per time constant, and at
-  most :data:`PLAN_MAX_ELECTRICAL_STEP` electrical radians per sample in the
-  spin-up): drivecal's forward model takes one RK4 step per sample, whose
-  error then stays orders of magnitude below any sensor noise;
-* **durations** from the time constants: :data:`LOCKED_TIME_CONSTANTS` ``L/R``
-  per locked step, :data:`SPIN_TIME_CONSTANTS` spin-up times for the free
-  segment (the mechanical time constant ``tm = J*R / (1.5 p^2 lambda_m^2)``, or
-  ``sqrt(tm * Lq/R)``, a quarter period of the electromechanical oscillation,
-  when that is longer), each at least :data:`MIN_SEGMENT_SAMPLES` samples;
-* a **spin-up voltage** whose predicted peak speed stays under
-  :data:`SPEED_FRACTION` of ``max_speed`` and of the no-load speed the voltage
-  allows (the open-loop step response overshoots by the electromechanical
-  damping, accounted for).
+* **sample rate**: the bench's, else a real inverter's 10 kHz, raised towards 40 kHz only where the
+  fastest electrical time constant or the spin-up's electrical speed needs it (``choose_sample_rate``);
+* **amplitudes** from the current limit and R: each step drives a steady current of
+  :data:`STEP_CURRENT_FRACTION` of the limit (``v = i * R``; the q-step less where its torque would
+  pass :data:`TORQUE_MARGIN` of the clamp's limit), never more than :data:`VOLTAGE_FRACTION` of the
+  voltage circle ``v_dc / sqrt(3)``;
+* **dead time**: a step under :data:`DEAD_TIME_MARGIN` times the expected dead-time voltage
+  ``v_dc * t_dead * f_s`` is raised to it where the current margin allows; where not, v_dead must
+  be fitted: the plan gains a second d-step at :data:`DEAD_TIME_SECOND_LEVEL` of the current (the
+  dead-time voltage is the same at both currents, R's drop is not), every locked step adds the
+  dead time's drop to reach its current, and the plan is judged with v_dead estimated (the report's
+  ``limits`` and notes say so);
+* **durations** from the time constants: :data:`LOCKED_TIME_CONSTANTS` ``L/R`` per locked step,
+  :data:`SPIN_TIME_CONSTANTS` spin-up times (the mechanical time constant
+  ``tm = J*R / (1.5 p^2 lambda_m^2)``, or ``sqrt(tm * Lq/R)``, a quarter period of the
+  electromechanical oscillation, when that is longer) after the spin-up's ramp, each at least
+  :data:`MIN_SEGMENT_SAMPLES` samples;
+* a **spin-up ramp** on v_q to the back-EMF of :data:`SPIN_SPEED_FRACTION` of the speed limit
+  (``max_speed``, and the no-load speed the voltage allows), as fast as keeps its acceleration current
+  near a locked step's: a voltage step would surge to ``v/R`` and, held to the current limit, spin a
+  large motor to a few per cent of its rated speed, where lambda_m's back-EMF hardly shows.
 
 The total sample count is rounded up to a power of two, lengthening every
 segment alike, so that plans of different
@@ -30,7 +34,7 @@ instead, down to :data:`MIN_LOCKED_TIME_CONSTANTS` and
 :data:`MIN_SPIN_TIME_CONSTANTS`.
 
 When mechanical parameters (J, B, T_coulomb, T_load) are requested, the
-spin-up runs on to a steady speed and the mechanical test continues it: a
+spin-up is a voltage step that runs on to a steady speed and the mechanical test continues it: a
 low-speed run (and a reversed one for T_load) and a short-circuit braking,
 sized in ``_mechanical``.
 
@@ -39,10 +43,12 @@ those ``_saturation_plan`` lays out: steps at three current levels per saturatin
 the current limit, and combined d+q steps for the cross-saturation. A motor without a magnet
 (``lambda_m = 0``, a synchronous reluctance machine) gets no free spin-up (v_q alone makes no torque
 there, and there is no back-EMF to show); it can then estimate neither lambda_m nor the mechanics.
+These plans report the dead-time margin but do not lay out what identifies v_dead.
 
 The plan is then judged by :func:`drivecal.design.assess_design` on the
 nominal motor, for the requested parameters (with its saturating law where it has one); a segment
-whose predicted peak current or speed breaks a limit is scaled down and the plan judged again. When
+whose predicted peak current, speed or clamp torque breaks a limit is scaled down and the plan judged
+again. When
 the motor is linear (its saturation unknown), the free segments are then held to a current a motor
 whose inductances have fallen to half would keep under the limit (``_saturation_plan``; stated in
 the report's notes). It binds where the inductance holds the spin-up's current down (slow electrical,
@@ -58,89 +64,36 @@ import math
 
 from ._assess import MAX_ELECTRICAL_STEP as _DESIGN_MAX_STEP
 from ._assess import DesignReport, assess_design, predict_segments
+from ._bench_limits import (CURRENT_MARGIN, DEAD_TIME_MARGIN, DEFAULT_DEAD_TIME, LOCKED_TIME_CONSTANTS,
+                            MIN_LOCKED_TIME_CONSTANTS, MIN_SAMPLES_PER_TIME_CONSTANT, MIN_SEGMENT_SAMPLES,
+                            MIN_SPIN_TIME_CONSTANTS, PLAN_MAX_ELECTRICAL_STEP, SAMPLE_RATES, SAMPLES_PER_TIME_CONSTANT,
+                            SPEED_FRACTION, SPIN_SPEED_FRACTION, SPIN_TIME_CONSTANTS, STEP_CURRENT_FRACTION,
+                            TORQUE_MARGIN, VOLTAGE_FRACTION, BenchLimits, MotorTimes, choose_sample_rate, clamp_current,
+                            dead_time_drop, expected_dead_voltage, expected_dead_width)
 from ._mechanical import SETTLE_SPIN_TIMES, friction_samples, mechanical_requested, mechanical_segments, run_voltages
 from ._saturation_plan import (SATURATION_TOP_FRACTION, LockedStep, margin_note, saturation_requested,
-                               saturation_steps, weakened)
+                               saturation_steps, weakened, with_saturation_steps)
 from .._stats import next_power_of_two
 from ..errors import DrivecalError
-from ..identify import magnetic_reasons
-from ..model import Experiment, model_experiment
 from ..physics import ESTIMABLE, ESTIMATED, MotorParams, is_saturating
-from ..plan import Plan, Segment
+from ..plan import Plan, Segment, waveforms
 
-#: Steady current of a locked step, and the current scale of the spin-up, as a fraction of the current limit.
-STEP_CURRENT_FRACTION = 0.5
-#: Largest share of the voltage circle ``v_dc / sqrt(3)`` a segment commands.
-VOLTAGE_FRACTION = 0.9
-#: Largest predicted peak speed as a share of ``max_speed`` (and of the no-load speed).
-SPEED_FRACTION = 0.8
-#: Largest predicted peak current as a share of the current limit before a segment is scaled down.
-CURRENT_MARGIN = 0.8
-#: Samples per fastest electrical time constant: RK4's local error ~ (dt/tau)^5 / 120 ~ 1e-7 of the current.
-SAMPLES_PER_TIME_CONSTANT = 10
-#: Electrical angle per sample (rad) in the spin-up: a fifth of what design accepts, RK4 phase error ~1e-7.
-PLAN_MAX_ELECTRICAL_STEP = 0.2 * _DESIGN_MAX_STEP
-#: Locked-step length in electrical time constants L/R: the transient (L) and a steady tail (R).
-LOCKED_TIME_CONSTANTS = 6.0
-#: Free spin-up length in spin-up times (see the module docstring).
-SPIN_TIME_CONSTANTS = 4.0
-#: Shortest segments a time budget may force.
-MIN_LOCKED_TIME_CONSTANTS = 3.0
-MIN_SPIN_TIME_CONSTANTS = 1.5
-#: Fewest samples per segment (noise averaging), unless a budget forbids.
-MIN_SEGMENT_SAMPLES = 200
-#: Bench sample rates considered (Hz).
-MIN_SAMPLE_RATE = 1_000.0
-MAX_SAMPLE_RATE = 200_000.0
-#: Fewest samples per electrical time constant accepted from a user-given sample rate.
-MIN_SAMPLES_PER_TIME_CONSTANT = 3
+__all__ = ["CURRENT_MARGIN", "LOCKED_TIME_CONSTANTS", "MIN_LOCKED_TIME_CONSTANTS", "MIN_SAMPLES_PER_TIME_CONSTANT",
+           "MIN_SEGMENT_SAMPLES", "MIN_SPIN_TIME_CONSTANTS", "MotorTimes", "PLAN_MAX_ELECTRICAL_STEP",
+           "SAMPLES_PER_TIME_CONSTANT", "SPEED_FRACTION", "SPIN_TIME_CONSTANTS", "STEP_CURRENT_FRACTION",
+           "VOLTAGE_FRACTION", "auto_design", "auto_plan", "with_saturation_steps"]
+
+#: Bench sample rates auto-plan chooses from (Hz): real inverters' 10 to 40 kHz.
+MIN_SAMPLE_RATE = SAMPLE_RATES[0]
+MAX_SAMPLE_RATE = SAMPLE_RATES[-1]
 #: Nominal sensor noise as a fraction of the current limit (full scale), for predicted intervals (A/A).
 NOISE_FRACTION = 0.002
+#: Peak over steady speed allowed for in the spin-up ramp's electrical speed (sample rate), -.
+RAMP_OVERSHOOT = 1.1
+#: The second locked d-step's current, as a share of the first's, where v_dead is fitted: two currents tell
+#: the dead-time voltage (the same at both) from R (proportional to the current).
+DEAD_TIME_SECOND_LEVEL = 0.5
 _ATTEMPTS = 8
-_NICE = (1.0, 1.25, 1.6, 2.0, 2.5, 3.2, 4.0, 5.0, 6.4, 8.0)
-
-
-@dataclasses.dataclass(frozen=True)
-class MotorTimes:
-    """Characteristic times of a motor (s) and its electromechanical damping.
-
-    Attributes:
-        tau_d, tau_q: electrical time constants ``Ld/R``, ``Lq/R`` (s).
-        tau_m: mechanical time constant ``J*R / (1.5 p^2 lambda_m^2)`` (s); infinite without a magnet.
-        zeta: damping ratio ``sqrt(tau_m / tau_q) / 2`` of the spin-up (i_d ~ 0, B ~ 0).
-        spin_time: ``max(tau_m, sqrt(tau_m * tau_q))`` (s): how long the speed takes to build up.
-    """
-
-    tau_d: float
-    tau_q: float
-    tau_m: float
-    zeta: float
-    spin_time: float
-
-    @classmethod
-    def of(cls, motor: MotorParams) -> MotorTimes:
-        r, p, lam = float(motor.R), float(motor.pole_pairs), float(motor.lambda_m)
-        tau_d, tau_q = float(motor.Ld) / r, float(motor.Lq) / r
-        if lam == 0.0:  # no magnet (a synchronous reluctance motor): v_q alone turns nothing
-            return cls(tau_d, tau_q, math.inf, math.inf, math.inf)
-        tau_m = float(motor.J) * r / (1.5 * p**2 * lam**2)
-        return cls(tau_d, tau_q, tau_m, 0.5 * math.sqrt(tau_m / tau_q), max(tau_m, math.sqrt(tau_m * tau_q)))
-
-    @property
-    def overshoot(self) -> float:
-        """Peak over final speed of the open-loop step response (1 to 2, -)."""
-        if self.zeta >= 1.0:
-            return 1.0
-        return 1.0 + math.exp(-math.pi * self.zeta / math.sqrt(1.0 - self.zeta**2))
-
-
-def _nice_ceil(x: float) -> float:
-    """The smallest of 1, 1.25, 1.6, 2, 2.5, 3.2, 4, 5, 6.4, 8 x 10^k at or above ``x``."""
-    k = math.floor(math.log10(x))
-    for m in _NICE + (10.0,):
-        if m * 10.0**k >= x * (1 - 1e-12):
-            return m * 10.0**k
-    return 10.0 ** (k + 1)  # pragma: no cover
 
 
 def _bucket(n: int) -> int:
@@ -161,6 +114,7 @@ class _Levels:
     steps: tuple[LockedStep, ...]  # the locked steps, in plan order
     v_spin: float  # 0: no free spin-up
     sample_rate: float
+    rise: float = 0.0  # the spin-up's ramp (s); 0: a voltage step
 
     def scaled(self, factors: tuple[float, ...]) -> _Levels:
         """Segment voltages multiplied by ``factors`` (one per locked step, then the spin-up's)."""
@@ -168,36 +122,18 @@ class _Levels:
                                    v_spin=self.v_spin * factors[-1])
 
 
-def _sample_rate(times: MotorTimes, motor: MotorParams, v_spin: float, given: float | None) -> float:
-    tau = min(times.tau_d, times.tau_q)
-    # Peak electrical speed of the spin-up: overshoot * v / lambda_m (rad/s).
-    w_e_peak = times.overshoot * v_spin / float(motor.lambda_m) if v_spin else 0.0
-    if given is not None:
-        if given * tau < MIN_SAMPLES_PER_TIME_CONSTANT:
-            raise DrivecalError(
-                f"sample_rate {given:g} Hz gives {given * tau:.2g} samples per electrical time constant "
-                f"({tau:.3g} s); sample at least {MIN_SAMPLES_PER_TIME_CONSTANT / tau:.3g} Hz or leave it to auto-plan."
-            )
-        return float(given)
-    need = max(SAMPLES_PER_TIME_CONSTANT / tau, w_e_peak / PLAN_MAX_ELECTRICAL_STEP, MIN_SAMPLE_RATE)
-    if need > MAX_SAMPLE_RATE:
-        raise DrivecalError(
-            f"the motor's electrical time constant {tau:.3g} s needs a sample rate of {need:.3g} Hz, above the "
-            f"{MAX_SAMPLE_RATE:g} Hz auto-plan considers; give sample_rate explicitly if the bench can do it."
-        )
-    return _nice_ceil(need)
-
-
 def _segment_samples(times: MotorTimes, fs: float, budget: float | None, runs: int = 0,
-                     steady: int = 0, taus: tuple[float, ...] | None = None, spin: bool = True) -> list[int]:
+                     steady: int = 0, taus: tuple[float, ...] | None = None, spin: bool = True,
+                     rise: float = 0.0) -> list[int]:
     """Samples per segment: the locked steps (time constants ``taus``, default the d- and the q-step's),
-    the spin-up (unless not ``spin``) and ``runs`` continuing runs of the mechanical test (the last the
-    braking), the spin-up and every run but the braking ``steady`` samples longer."""
+    the spin-up (unless not ``spin``; ``rise`` (s) longer: its ramp and settling) and ``runs`` continuing runs of the
+    mechanical test (the last the braking), the spin-up and every run but the braking ``steady`` samples longer."""
     taus = (times.tau_d, times.tau_q) if taus is None else taus
     settle = SETTLE_SPIN_TIMES * times.spin_time * fs
     full = [max(LOCKED_TIME_CONSTANTS * tau * fs, MIN_SEGMENT_SAMPLES) for tau in taus]
     if spin:
-        full.append(max(SPIN_TIME_CONSTANTS * times.spin_time * fs + (steady if runs else 0), MIN_SEGMENT_SAMPLES))
+        full.append(max((SPIN_TIME_CONSTANTS * times.spin_time + rise) * fs + (steady if runs else 0),
+                        MIN_SEGMENT_SAMPLES))
     full += [max(settle + (steady if k < runs - 1 else 0), MIN_SEGMENT_SAMPLES) for k in range(runs)]
     full = [int(math.ceil(n)) for n in full]
     total = sum(full)
@@ -226,35 +162,52 @@ def _segment_samples(times: MotorTimes, fs: float, budget: float | None, runs: i
     return counts
 
 
+SPIN_UP = "free spin-up"
+
+
 def _plan(levels: _Levels, counts: list[int], v_dc: float, current_limit: float,
-          max_speed: float | None, names: tuple[str, ...] = ESTIMATED, noise: float | None = None) -> Plan:
-    """The plan of ``levels`` and sample ``counts``; it records the sensor ``noise`` (A) it was designed for."""
+          max_speed: float | None, names: tuple[str, ...] = ESTIMATED, noise: float | None = None,
+          max_torque: float | None = None, drop=None) -> Plan:
+    """The plan of ``levels`` and sample ``counts``; it records the sensor ``noise`` (A) it was designed for.
+    ``drop(i_d, i_q)``: the dead-time voltage each locked step adds for its current ``v / R`` (None: none)."""
     fs = levels.sample_rate
     k = len(levels.steps)
-    mechanics = mechanical_segments(levels.v_spin, names, counts[k + 1:], fs) if mechanical_requested(names) else ()
-    spin = (Segment("free spin-up", counts[k] / fs, locked=False, v_d=0.0, v_q=levels.v_spin),) if levels.v_spin else ()
+    mechanics = mechanical_requested(names)
+    runs = mechanical_segments(levels.v_spin, names, counts[k + 1:], fs) if mechanics else ()
+    spin = ()
+    if levels.v_spin:
+        v_q = (levels.v_spin if not levels.rise
+               else waveforms.ramp(counts[k], fs, level=levels.v_spin, rise=levels.rise))
+        spin = (Segment(SPIN_UP, counts[k] / fs, locked=False, v_d=0.0, v_q=v_q),)
+    steps = []
+    for s, n in zip(levels.steps, counts):
+        extra = (0.0, 0.0) if drop is None else drop(s.v_d, s.v_q)
+        steps.append(Segment(s.name, n / fs, locked=True, v_d=s.v_d + extra[0], v_q=s.v_q + extra[1]))
     return Plan(
-        segments=tuple(Segment(s.name, n / fs, locked=True, v_d=s.v_d, v_q=s.v_q)
-                       for s, n in zip(levels.steps, counts)) + spin + mechanics,
+        segments=tuple(steps) + spin + runs,
         sample_rate=fs,
         v_dc=float(v_dc),
         current_limit=float(current_limit),
         max_speed=None if max_speed is None else float(max_speed),
         current_noise=noise,
+        max_torque=None if max_torque is None else float(max_torque),
     )
 
 
 def _check_inputs(motor: MotorParams, v_dc: float, current_limit: float, max_speed, budget, sample_rate,
-                  names: tuple[str, ...]) -> None:
+                  names: tuple[str, ...], max_torque=None, dead_time=0.0) -> None:
     unknown = [n for n in names if n not in ESTIMABLE]
     if unknown or not names:
         raise DrivecalError(f"unknown parameter(s) to estimate: {', '.join(unknown) or '(none given)'}; "
                             f"choose from {', '.join(ESTIMABLE)}.")
     for name, value, unit in (("v_dc", v_dc, "V"), ("current_limit", current_limit, "A"),
                               ("max_speed", max_speed, "rad/s"), ("budget", budget, "s"),
-                              ("sample_rate", sample_rate, "Hz")):
+                              ("sample_rate", sample_rate, "Hz"), ("max_torque", max_torque, "N*m")):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise DrivecalError(f"{name} must be a positive number of {unit}, got {value!r}.")
+    if not (math.isfinite(dead_time) and dead_time >= 0):
+        raise DrivecalError(f"dead_time must be a number of seconds >= 0 (0: an inverter that compensates it), "
+                            f"got {dead_time!r}.")
     for name in ESTIMATED + ("pole_pairs", "J"):
         value = float(getattr(motor, name))
         if name == "lambda_m" and value == 0.0:  # no magnet: locked steps only
@@ -267,6 +220,15 @@ def _check_inputs(motor: MotorParams, v_dc: float, current_limit: float, max_spe
             raise DrivecalError(f"the motor's {name} must be a positive number, got {value!r}.")
 
 
+def _step_voltage(r: float, current: float, cap: float, need: float, v_max: float) -> float:
+    """A locked step's voltage ``R * i`` (V): ``current``, under ``cap`` (A); raised to the dead-time margin
+    ``need`` (V) where that stays within the current margin and ``cap``; inside ``v_max``."""
+    v = min(current, cap) * r
+    if v < need <= min(CURRENT_MARGIN * current / STEP_CURRENT_FRACTION, cap) * r:
+        v = need
+    return min(v, v_max)
+
+
 def auto_design(
     motor: MotorParams,
     *,
@@ -277,6 +239,8 @@ def auto_design(
     sample_rate: float | None = None,
     noise_sigma: float | None = None,
     names: tuple[str, ...] = ESTIMATED,
+    max_torque: float | None = None,
+    dead_time: float = DEFAULT_DEAD_TIME,
 ) -> DesignReport:
     """:func:`auto_plan` and its assessment on ``motor`` (the :class:`DesignReport`).
 
@@ -285,63 +249,118 @@ def auto_design(
             mechanical test's length; default :data:`NOISE_FRACTION` of ``current_limit``.
             The plan records it (``Plan.current_noise``), so its file carries it to
             ``drivecal design`` and ``drivecal simulate``.
+
+    The report's ``limits`` (:class:`BenchLimits`) say where the sample rate came from, the
+    expected dead-time voltage and whether ``v_dead`` must be fitted; its ``waveforms`` hold the
+    spin-up ramp's plan-file table.
     """
     names = tuple(n for n in ESTIMABLE if n in names)
-    _check_inputs(motor, v_dc, current_limit, max_speed, budget, sample_rate, names)
-    mechanics = mechanical_requested(names)
+    _check_inputs(motor, v_dc, current_limit, max_speed, budget, sample_rate, names, max_torque, dead_time)
+    mechanics, saturation = mechanical_requested(names), saturation_requested(names)
     times = MotorTimes.of(motor)
     sigma = NOISE_FRACTION * current_limit if noise_sigma is None else float(noise_sigma)
     r, p, lam = float(motor.R), float(motor.pole_pairs), float(motor.lambda_m)
     v_max = VOLTAGE_FRACTION * v_dc / math.sqrt(3.0)
-    v_step = min(STEP_CURRENT_FRACTION * current_limit * r, v_max)
     no_load = (v_dc / math.sqrt(3.0)) / (p * lam) if lam else math.inf  # rad/s: back-EMF meets the voltage circle
     w_limit = no_load if max_speed is None else min(max_speed, no_load)
     w_cap = SPEED_FRACTION * w_limit
-    # The spin-up starts like a locked q-step (current <= v/R) and settles at w = v/(p lambda_m),
-    # after an overshoot set by the electromechanical damping.
-    v_spin = min(v_step, w_cap * p * lam / times.overshoot) if lam else 0.0
-    if saturation_requested(names):
+    tau = min(times.tau_d, times.tau_q)
+    i_step = STEP_CURRENT_FRACTION * current_limit
+    ramp = bool(lam) and not mechanics  # the standard spin-up: a ramp up to a set speed
+    if ramp:
+        w_spin = SPIN_SPEED_FRACTION * w_limit
+        fs, fs_source = choose_sample_rate(tau, RAMP_OVERSHOOT * p * w_spin, sample_rate)
+        w_spin = min(w_spin, PLAN_MAX_ELECTRICAL_STEP * fs / (RAMP_OVERSHOOT * p))  # a slow bench: spin slower
+        v_spin = min(p * lam * w_spin, v_max)
+        # Accelerate at half the steady current a locked step draws (refined below on the prediction). With
+        # v_d = 0 the rotation drives i_d ~ w_e * Lq/R * i_q: the ramp is as much longer as that grows.
+        coupling = math.hypot(1.0, p * w_spin * times.tau_q)
+        rise = max(float(motor.J) * w_spin * coupling / (1.5 * p * lam * 0.5 * i_step), 2.0 * times.spin_time,
+                   2.0 * times.tau_q)
+    else:
+        # The spin-up starts like a locked q-step (current <= v/R) and settles at w = v/(p lambda_m),
+        # after an overshoot set by the electromechanical damping.
+        v_spin = min(i_step * r, v_max, w_cap * p * lam / times.overshoot) if lam else 0.0
+        fs, fs_source = choose_sample_rate(tau, times.overshoot * v_spin / lam if lam else 0.0, sample_rate)
+        rise = 0.0
+    v_dead = expected_dead_voltage(motor, v_dc, dead_time, fs)
+    i_dead = expected_dead_width(motor, v_dc, fs)
+    need = DEAD_TIME_MARGIN * v_dead
+    v_d_step = _step_voltage(r, i_step, math.inf, need, v_max)
+    v_q_step = _step_voltage(r, i_step, clamp_current(motor, max_torque), need, v_max)
+    # Under the margin the dead time is part of what a step measures: the standard plan then fits v_dead,
+    # with a second d-step current to tell it from R and every locked step adding its drop.
+    fit_dead = 0 < min(v_d_step, v_q_step) < need and not (mechanics or saturation)
+    if saturation:
         v_top = min(SATURATION_TOP_FRACTION * current_limit * r, v_max)
         steps = saturation_steps(names, v_top, times.tau_d, times.tau_q)
     else:
-        steps = (LockedStep("locked d-step", v_step, 0.0, times.tau_d),
-                 LockedStep("locked q-step", 0.0, v_step, times.tau_q))
-    levels = _Levels(steps, v_spin, 0.0)
+        steps = (LockedStep("locked d-step", v_d_step, 0.0, times.tau_d),
+                 LockedStep("locked q-step", 0.0, v_q_step, times.tau_q))
+        if fit_dead:
+            steps = steps[:1] + (LockedStep("locked d-step, half current", DEAD_TIME_SECOND_LEVEL * v_d_step, 0.0,
+                                            times.tau_d),) + steps[1:]
+    levels = _Levels(steps, v_spin, fs, rise)
+    dead_motor = motor.replace(v_dead=v_dead, i_dead=i_dead) if fit_dead else motor
+    dead_names = tuple(n for n in ESTIMABLE if n in names + ("v_dead",)) if fit_dead else names
 
-    def judge(levels: _Levels) -> DesignReport:
-        fs = _sample_rate(times, motor, levels.v_spin, sample_rate)
-        levels = dataclasses.replace(levels, sample_rate=fs)
+    def drop(v_d: float, v_q: float) -> tuple[float, float]:
+        return dead_time_drop(v_dead, i_dead, v_d / r, v_q / r)
+
+    def judge(levels: _Levels, final: bool = False) -> DesignReport:
         runs = len(run_voltages(levels.v_spin, names)) if mechanics else 0
         steady = friction_samples(motor, names, levels.v_spin, sigma) if mechanics else 0
+        # After a ramp the currents settle over a few electrical time constants (v_d = 0 leaves an i_d
+        # that the rotation drives, which lowers the speed until it has decayed).
+        extra = levels.rise + LOCKED_TIME_CONSTANTS * max(times.tau_d, times.tau_q) if levels.rise else 0.0
         counts = _segment_samples(times, fs, budget, runs, steady, tuple(s.tau for s in levels.steps),
-                                  spin=bool(levels.v_spin))
-        plan = _plan(levels, counts, v_dc, current_limit, max_speed, names, sigma)
+                                  spin=bool(levels.v_spin), rise=extra)
+        plan = _plan(levels, counts, v_dc, current_limit, max_speed, names, sigma, max_torque,
+                     drop if final and fit_dead else None)
+        if final and fit_dead:  # on the motor with its dead time, v_dead estimated too
+            return assess_design(plan, dead_motor, noise_sigma=sigma, names=dead_names)
         return assess_design(plan, motor, noise_sigma=sigma, names=names)
 
     report = judge(levels)
     for _ in range(_ATTEMPTS):
         if report.ok:
             break
-        scale = _scale_down(report, current_limit, w_limit, w_cap)
-        if scale is None:
+        scale = _scale_down(report, current_limit, w_limit, w_cap, plan_torque=max_torque, ramp=bool(levels.rise))
+        longer = _ramp_stretch(report, current_limit) if levels.rise else 1.0
+        if scale is None and longer == 1.0:
             break  # feasible but not identifiable: smaller amplitudes will not help
-        levels = levels.scaled(scale)
+        levels = dataclasses.replace(levels if scale is None else levels.scaled(scale), rise=levels.rise * longer)
         report = judge(levels)
-    if report.ok and levels.v_spin:
+    if report.ok and levels.v_spin and levels.rise:
+        report, levels = _fit_ramp(report, levels, judge, current_limit, times)
+    elif report.ok and levels.v_spin:
         # The spin-up's back-EMF keeps its current well under a locked step's: spin it faster,
-        # within the same current, the speed cap and the voltage circle, for a tighter lambda_m.
+        # within the same current, the speed cap, the voltage circle and the electrical step.
         free = [s for s in report.segments if not s.locked]  # the spin-up and the runs that continue it
-        boost = min(STEP_CURRENT_FRACTION * current_limit / max(s.peak_current for s in free),
-                    w_cap / max(s.peak_speed for s in free), v_max / levels.v_spin)
+        boost = min(i_step / max(s.peak_current for s in free), w_cap / max(s.peak_speed for s in free),
+                    v_max / levels.v_spin, PLAN_MAX_ELECTRICAL_STEP / max(s.peak_electrical_step for s in free))
         if boost > 1.05:
             boosted_levels = levels.scaled((1.0,) * len(levels.steps) + (boost,))
             boosted = judge(boosted_levels)
             if boosted.ok:
                 report, levels = boosted, boosted_levels
-        if not is_saturating(motor):
-            report = _saturation_margin(report, levels, judge, motor, current_limit)
+    if report.ok and levels.v_spin and not is_saturating(motor):
+        report, levels = _saturation_margin(report, levels, judge, motor, current_limit)
     if report.ok:
-        return report
+        notes = report.notes
+        if fit_dead:
+            final = judge(levels, final=True)
+            if not final.ok:
+                raise DrivecalError(f"the expected dead-time voltage {v_dead:.3g} V is above a tenth of the locked "
+                                    f"steps' and this plan cannot tell it from R ({final.identifiability.summary()});"
+                                    " lower --dead-time if the inverter compensates it, or raise the current limit.")
+            report = final
+        limits = BenchLimits(fs_source, float(dead_time), v_dead, i_dead, fit_dead, w_limit, max_torque,
+                             report.identifiability.names)
+        notes += limits.dead_time_notes(report.plan)
+        wave = ({(SPIN_UP, "v_q"): {"kind": "ramp", "level": levels.v_spin, "rise": levels.rise}}
+                if levels.v_spin and levels.rise else {})
+        return dataclasses.replace(report, notes=notes, limits=limits, waveforms=wave)
     if not report.feasible:
         raise DrivecalError(f"no feasible plan found for this motor within the limits: {report.problems[0]}")
     ident = report.identifiability
@@ -354,17 +373,39 @@ def auto_design(
     )
 
 
+def _fit_ramp(report: DesignReport, levels: _Levels, judge, current_limit: float,
+              times: MotorTimes) -> tuple[DesignReport, _Levels]:
+    """The spin-up ramp made as short as keeps its predicted peak current near a locked step's (the
+    acceleration current is the rotor's inertia times the ramp's slope), never under two spin-up times."""
+    target = STEP_CURRENT_FRACTION * current_limit
+    least = max(2.0 * times.spin_time, 2.0 * times.tau_q)
+    for _ in range(4):
+        peak = max(s.peak_current for s in report.segments if not s.locked)
+        if 0.8 * target <= peak <= target:
+            break
+        rise = max(levels.rise * peak / (0.9 * target), least)
+        if abs(rise - levels.rise) <= 0.01 * levels.rise:
+            break
+        candidate_levels = dataclasses.replace(levels, rise=rise)
+        candidate = judge(candidate_levels)
+        if not candidate.ok:
+            break
+        report, levels = candidate, candidate_levels
+    return report, levels
+
+
 def _saturation_margin(report: DesignReport, levels: _Levels, judge, motor: MotorParams,
-                       current_limit: float) -> DesignReport:
-    """``report`` with its free segments held under ``current_limit`` on a motor whose inductances have fallen
-    (``_saturation_plan.weakened``), the spin-up voltage scaled down where needed; the margin in its notes."""
+                       current_limit: float) -> tuple[DesignReport, _Levels]:
+    """``report`` (and its levels) with its free segments held under ``current_limit`` on a motor whose
+    inductances have fallen (``_saturation_plan.weakened``), the spin-up voltage scaled down where needed;
+    the margin in its notes."""
     fallen = weakened(motor)
     factor = 1.0
     for _ in range(_ATTEMPTS):
         peak = max(s.peak_current for m in fallen for s in predict_segments(report.plan, m) if not s.locked)
         if peak <= current_limit:
             note = margin_note(peak, current_limit, factor)
-            return dataclasses.replace(report, notes=report.notes + (note,))
+            return dataclasses.replace(report, notes=report.notes + (note,)), levels
         step = CURRENT_MARGIN * current_limit / peak
         factor *= step
         levels = levels.scaled((1.0,) * len(levels.steps) + (step,))
@@ -376,17 +417,26 @@ def _saturation_margin(report: DesignReport, levels: _Levels, judge, motor: Moto
                         "saturation law (sat_d, sat_q, sat_dq).")
 
 
+def _ramp_stretch(report: DesignReport, current_limit: float) -> float:
+    """How much longer the spin-up's ramp must be for its current (the acceleration's) to fall inside the limit."""
+    peak = max(s.peak_current for s in report.segments if not s.locked)
+    return peak / (CURRENT_MARGIN * current_limit) if peak > current_limit else 1.0
+
+
 def _scale_down(report: DesignReport, current_limit: float, w_limit: float,
-                w_cap: float) -> tuple[float, ...] | None:
+                w_cap: float, plan_torque: float | None = None, ramp: bool = False) -> tuple[float, ...] | None:
     """Voltage factors (one per locked step, then the spin-up's) that bring predicted peaks back inside the
-    limits, or None if none broke; the runs that continue the spin-up scale with it."""
+    limits (the clamp's ``plan_torque`` too), or None if none broke; the runs that continue the spin-up scale
+    with it. A spin-up ``ramp``'s current is left to :func:`_ramp_stretch` (a slower ramp, not a lower speed)."""
     scale = [1.0] * len(report.segments)
     for i, s in enumerate(report.segments):
         if not s.finite:
             scale[i] = 0.5
             continue
-        if s.peak_current > current_limit:
+        if s.peak_current > current_limit and (s.locked or not ramp):
             scale[i] = min(scale[i], CURRENT_MARGIN * current_limit / s.peak_current)
+        if s.locked and plan_torque is not None and s.peak_torque > plan_torque:
+            scale[i] = min(scale[i], TORQUE_MARGIN * plan_torque / s.peak_torque)
         if not s.locked and s.peak_speed > w_limit:
             scale[i] = min(scale[i], w_cap / s.peak_speed)
         if not s.locked and s.peak_electrical_step > _DESIGN_MAX_STEP:
@@ -394,40 +444,6 @@ def _scale_down(report: DesignReport, current_limit: float, w_limit: float,
     k = sum(1 for s in report.segments if s.locked)
     scale = scale[:k] + [min(scale[k:], default=1.0)]
     return None if all(f == 1.0 for f in scale) else tuple(scale)
-
-
-def with_saturation_steps(plan: Plan, motor: MotorParams, names: tuple[str, ...]) -> tuple[Plan, tuple[str, ...]]:
-    """``plan`` with the locked steps that show the requested saturation coefficients it cannot see, and their names.
-
-    What ``identify`` finds hidden (one current level on an axis, no d and q current together) gets
-    the steps auto-plan would lay out for it (``_saturation_plan``: three levels on the axis up to
-    :data:`SATURATION_TOP_FRACTION` of the plan's current limit, or the two combined d+q steps),
-    :data:`LOCKED_TIME_CONSTANTS` electrical time constants long, inserted before the first free
-    segment (the rotor stays clamped until then). ``plan`` unchanged (and no names) when nothing is
-    hidden or no coefficient is requested.
-    """
-    names = tuple(names)
-    hidden = magnetic_reasons(model_experiment(Experiment.from_plan(plan), motor, names), motor, names)
-    if not hidden:
-        return plan, ()
-    r, fs = float(motor.R), plan.sample_rate
-    v_top = min(SATURATION_TOP_FRACTION * plan.current_limit * r, VOLTAGE_FRACTION * plan.voltage_limit)
-    wanted = tuple(hidden)
-    axes = {"sat_d": "locked d-", "sat_q": "locked q-"}
-    steps = [st for st in saturation_steps(wanted, v_top, float(motor.Ld) / r, float(motor.Lq) / r)
-             if not any(st.name.startswith(prefix) and n not in wanted for n, prefix in axes.items())]
-    taken = {seg.name for seg in plan.segments}
-    added = []
-    for st in steps:
-        n = max(int(math.ceil(LOCKED_TIME_CONSTANTS * st.tau * fs)), MIN_SEGMENT_SAMPLES)
-        name = st.name if st.name not in taken else f"{st.name} (saturation)"
-        taken.add(name)
-        added.append(Segment(name, n / fs, locked=True, v_d=st.v_d, v_q=st.v_q))
-    at = next((i for i, seg in enumerate(plan.segments) if not seg.locked), len(plan.segments))
-    while 0 < at < len(plan.segments) and plan.segments[at].continues:
-        at -= 1  # not inside a chain of continuing segments
-    segments = plan.segments[:at] + tuple(added) + plan.segments[at:]
-    return dataclasses.replace(plan, segments=segments), tuple(seg.name for seg in added)
 
 
 def auto_plan(
@@ -439,6 +455,8 @@ def auto_plan(
     budget: float | None = None,
     sample_rate: float | None = None,
     names: tuple[str, ...] = ESTIMATED,
+    max_torque: float | None = None,
+    dead_time: float = DEFAULT_DEAD_TIME,
 ) -> Plan:
     """A feasible, identifiable calibration plan scaled to ``motor``.
 
@@ -451,19 +469,25 @@ def auto_plan(
         max_speed: highest mechanical speed allowed in the free spin-up (rad/s);
             default: the no-load speed the voltage allows.
         budget: longest total plan duration (s), or None.
-        sample_rate: the bench's sample rate (Hz); default chosen from the
-            motor's time constants.
+        sample_rate: the bench's sample rate (Hz); default
+            :data:`~drivecal.design.DEFAULT_SAMPLE_RATE` (10 kHz, a real inverter's),
+            raised up to 40 kHz where the motor needs it.
         names: the parameters to estimate; with any of J, B, T_coulomb,
             T_load the plan gains the mechanical test (``_mechanical``).
+        max_torque: the rotor clamp's torque limit (N*m); locked steps stay under
+            :data:`TORQUE_MARGIN` of it. None: not checked.
+        dead_time: the inverter's dead time per switching edge (s), for the expected
+            dead-time voltage ``v_dc * dead_time * sample_rate`` (the motor file's
+            ``v_dead`` where it states one); 0 for an inverter that compensates it.
 
     Returns:
         A :class:`Plan` (locked d-step, locked q-step, free spin-up, and the
-        mechanical test's continuing runs) that :func:`drivecal.design.assess_design`
-        judges feasible and identifiable on ``motor``.
+        mechanical test's continuing runs; a second d-step where v_dead must be fitted)
+        that :func:`drivecal.design.assess_design` judges feasible and identifiable on ``motor``.
 
     Raises:
         DrivecalError: bad limits, or no feasible identifiable plan exists
             (one sentence naming the limit to change).
     """
     return auto_design(motor, v_dc=v_dc, current_limit=current_limit, max_speed=max_speed, budget=budget,
-                       sample_rate=sample_rate, names=names).plan
+                       sample_rate=sample_rate, names=names, max_torque=max_torque, dead_time=dead_time).plan

@@ -47,9 +47,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..identify import COND_MAX, CORR_MAX, WEAK_RELATIVE_CI, Identifiability, sensitivity_jacobian
+from ._bench_limits import LOCKED_TIME_CONSTANTS, MIN_SEGMENT_SAMPLES, VOLTAGE_FRACTION
+from ..identify import COND_MAX, CORR_MAX, WEAK_RELATIVE_CI, Identifiability, magnetic_reasons, sensitivity_jacobian
 from ..model import Experiment, model_experiment
 from ..physics import MAGNETIC, MotorParams, hinkkanen_law, is_saturating, search_scale
+from ..plan import Plan, Segment
 
 #: The steady currents of the locked steps on a saturating axis, as fractions of the top level.
 SATURATION_LEVELS = (1.0 / 3.0, 2.0 / 3.0, 1.0)
@@ -194,3 +196,37 @@ def law_verdict(ident: Identifiability, experiment: Experiment, motor: MotorPara
 def motor_note(motor: MotorParams) -> str | None:
     """The note saying which magnetic model predicted the peaks (None for a linear motor)."""
     return law_note(motor) if is_saturating(motor) else None
+
+
+def with_saturation_steps(plan: Plan, motor: MotorParams, names: tuple[str, ...]) -> tuple[Plan, tuple[str, ...]]:
+    """``plan`` with the locked steps that show the requested saturation coefficients it cannot see, and their names.
+
+    What ``identify`` finds hidden (one current level on an axis, no d and q current together) gets
+    the steps auto-plan would lay out for it (``_saturation_plan``: three levels on the axis up to
+    :data:`SATURATION_TOP_FRACTION` of the plan's current limit, or the two combined d+q steps),
+    :data:`LOCKED_TIME_CONSTANTS` electrical time constants long, inserted before the first free
+    segment (the rotor stays clamped until then). ``plan`` unchanged (and no names) when nothing is
+    hidden or no coefficient is requested.
+    """
+    names = tuple(names)
+    hidden = magnetic_reasons(model_experiment(Experiment.from_plan(plan), motor, names), motor, names)
+    if not hidden:
+        return plan, ()
+    r, fs = float(motor.R), plan.sample_rate
+    v_top = min(SATURATION_TOP_FRACTION * plan.current_limit * r, VOLTAGE_FRACTION * plan.voltage_limit)
+    wanted = tuple(hidden)
+    axes = {"sat_d": "locked d-", "sat_q": "locked q-"}
+    steps = [st for st in saturation_steps(wanted, v_top, float(motor.Ld) / r, float(motor.Lq) / r)
+             if not any(st.name.startswith(prefix) and n not in wanted for n, prefix in axes.items())]
+    taken = {seg.name for seg in plan.segments}
+    added = []
+    for st in steps:
+        n = max(int(math.ceil(LOCKED_TIME_CONSTANTS * st.tau * fs)), MIN_SEGMENT_SAMPLES)
+        name = st.name if st.name not in taken else f"{st.name} (saturation)"
+        taken.add(name)
+        added.append(Segment(name, n / fs, locked=True, v_d=st.v_d, v_q=st.v_q))
+    at = next((i for i, seg in enumerate(plan.segments) if not seg.locked), len(plan.segments))
+    while 0 < at < len(plan.segments) and plan.segments[at].continues:
+        at -= 1  # not inside a chain of continuing segments
+    segments = plan.segments[:at] + tuple(added) + plan.segments[at:]
+    return dataclasses.replace(plan, segments=segments), tuple(seg.name for seg in added)
