@@ -24,10 +24,12 @@ if TYPE_CHECKING:
 @click.option("--json", "as_json", is_flag=True, help="Print the assessment JSON on stdout instead of tables.")
 @click.option("--optimize", is_flag=True,
               help="Improve the plan's amplitudes, durations and bands for the smallest predicted confidence "
-                   "volume (D-optimal) within the voltage circle, the current limit and the time budget; "
-                   "needs --out.")
+                   "volume (D-optimal) within the margins `drivecal plan` keeps (90 % of the voltage circle, 80 % "
+                   "of the current limit, of the speed limit and of max_torque; segments of 200 samples and "
+                   "locked ones of 3 L/R at least) and the time budget; needs --out.")
 @click.option("--budget", type=_Positive(), default=None,
-              help="With --optimize: total duration of the improved plan [s] (default: the plan's own).")
+              help="With --optimize: total duration of the improved plan [s] (default: the plan's own, "
+                   "lengthened where its segments are shorter than the margins' least durations).")
 @click.option("--out", "out_path", type=click.Path(), default=None,
               help="With --optimize: the improved plan file to write (TOML).")
 def design(plan_path, motor_path, noise, as_json, optimize, budget, out_path):
@@ -50,10 +52,13 @@ def design(plan_path, motor_path, noise, as_json, optimize, budget, out_path):
     its peak currents predicted with that law.
 
     With --optimize --out OPT.toml the plan is improved first (D-optimal: the
-    smallest predicted confidence volume, same segments, within the limits and
-    --budget) and written to OPT.toml, with the noise it was judged at as
-    its current_noise; the predicted intervals before and
-    after and the volume ratio are printed. Saturation coefficients to
+    smallest predicted confidence volume, same segments, within the margins of
+    `drivecal plan` and --budget) and written to OPT.toml, with the noise it
+    was judged at as its current_noise; the predicted intervals before and
+    after and the volume ratio are printed. A multisine, chirp or PRBS whose
+    amplitude the optimum removes is written as the constant it is (its
+    segment named "step" instead). An input that breaks the margins is not
+    written back: the best plan that holds them is, even at a larger volume. Saturation coefficients to
     estimate that the plan cannot show (one current level on an axis, no d
     and q current together) first get the locked steps `drivecal plan` lays
     out for them, before the first free segment.
@@ -150,8 +155,8 @@ def _print_optimal(result, plan_path, out, console: Console, noise_source: str) 
     def level(spec):
         if not isinstance(spec, dict):
             return f"{float(spec):.3g}"
-        if spec["kind"] == "step":
-            return f"step {spec['level']:.3g}"
+        if spec["kind"] in ("step", "ramp"):
+            return f"{spec['kind']} {spec['level']:.3g}"
         if spec["kind"] == "samples":
             return "samples"
         return f"{spec['kind']} {spec['offset']:+.3g}±{spec['amplitude']:.2g}"  # bands: in the written file
@@ -186,8 +191,11 @@ def _print_optimal(result, plan_path, out, console: Console, noise_source: str) 
     console.print(f"confidence volume ratio (after / before) {result.volume_ratio:.3g}; det(Cov) ratio "
                   f"{result.det_ratio:.3g}; improved plan feasible, identifiability "
                   f"{result.report_after.identifiability.summary()}")
-    if not result.improved:
+    if result.plan_after is result.plan_before:
         console.print("[yellow]no better feasible plan was found: the input plan is written unchanged[/yellow]")
+    elif not result.improved:
+        console.print("[yellow]the input plan breaks the margins of `drivecal plan`: the written plan holds them, at "
+                      "a larger predicted confidence volume[/yellow]")
     console.print(f"wrote {out}")
 
 

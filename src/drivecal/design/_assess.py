@@ -22,6 +22,7 @@ from ..model import Experiment, model_experiment, simulate_states
 from ..identify import Identifiability, assess_identifiability
 from ..physics import ESTIMATED, MotorParams, flux_of_currents, is_saturating
 from ..plan import Plan
+from ._bench_limits import MAX_ELECTRICAL_STEP
 from ._saturation_plan import law_verdict, motor_note
 
 
@@ -118,8 +119,6 @@ def _num(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-#: Electrical angle per sample (rad) above which RK4 at one step per sample loses accuracy.
-MAX_ELECTRICAL_STEP = 0.5
 
 
 #: One compile per plan length, not one per motor (auto-plan judges many motors).

@@ -48,8 +48,10 @@ TORQUE_MARGIN = 0.8
 SAMPLES_PER_TIME_CONSTANT = 10
 #: Fewest samples per electrical time constant accepted from a user-given sample rate.
 MIN_SAMPLES_PER_TIME_CONSTANT = 3
+#: Electrical angle per sample (rad) above which RK4 at one step per sample loses accuracy (design refuses it).
+MAX_ELECTRICAL_STEP = 0.5
 #: Electrical angle per sample (rad) in the spin-up: a fifth of what design accepts, RK4 phase error ~1e-7.
-PLAN_MAX_ELECTRICAL_STEP = 0.1
+PLAN_MAX_ELECTRICAL_STEP = 0.2 * MAX_ELECTRICAL_STEP
 #: Locked-step length in electrical time constants L/R: the transient (L) and a steady tail (R).
 LOCKED_TIME_CONSTANTS = 6.0
 #: Free spin-up length in spin-up times (see :class:`MotorTimes`).
@@ -175,6 +177,42 @@ def clamp_current(motor: MotorParams, max_torque: float | None) -> float:
     if max_torque is None or kt == 0.0:
         return math.inf
     return TORQUE_MARGIN * float(max_torque) / kt
+
+
+def speed_limit(plan: Plan, motor: MotorParams) -> float:
+    """Highest mechanical speed (rad/s) a free segment may reach: ``max_speed``, the no-load
+    speed ``v_dc/sqrt(3) / (p * lambda_m)`` and the RK4 bound of ``design`` (rad per sample)."""
+    p, lam = float(motor.pole_pairs), float(motor.lambda_m)
+    limits = [plan.voltage_limit / (p * lam) if lam else math.inf, MAX_ELECTRICAL_STEP * plan.sample_rate / p]
+    if plan.max_speed is not None:
+        limits.append(float(plan.max_speed))
+    return min(limits)
+
+
+def margin_problems(report: Any, motor: MotorParams) -> tuple[str, ...]:
+    """Where a judged plan (a :class:`~drivecal.design.DesignReport`) leaves the margins auto-plan keeps, one
+    sentence each: a predicted peak current over :data:`CURRENT_MARGIN` of the limit, a voltage outside
+    :data:`VOLTAGE_FRACTION` of the circle, a free segment over :data:`SPEED_FRACTION` of
+    :func:`speed_limit`, a clamp torque over :data:`TORQUE_MARGIN` of ``max_torque``, a segment shorter
+    than :func:`min_durations` (to the sample)."""
+    plan, out = report.plan, []
+    tol = 1e-6
+    w_lim = SPEED_FRACTION * speed_limit(plan, motor)
+    for seg, pred, least in zip(plan.segments, report.segments, min_durations(plan, motor)):
+        where = f"segment '{seg.name}'"
+        if seg.num_samples(plan.sample_rate) + 1e-9 < math.floor(least * plan.sample_rate + 1e-9):
+            out.append(f"{where} lasts {seg.duration:.4g} s, under its least {least:.4g} s")
+        volts = float(np.max(np.hypot(*_volts(seg, plan.sample_rate))))
+        if volts > VOLTAGE_FRACTION * plan.voltage_limit * (1 + tol):
+            out.append(f"{where} commands {volts:.4g} V, over {VOLTAGE_FRACTION:g} of the voltage circle")
+        if pred.peak_current > CURRENT_MARGIN * plan.current_limit * (1 + tol):
+            out.append(f"{where} peaks at {pred.peak_current:.4g} A, over {CURRENT_MARGIN:g} of the current limit")
+        if not seg.locked and pred.peak_speed > w_lim * (1 + tol):
+            out.append(f"{where} reaches {pred.peak_speed:.4g} rad/s, over {SPEED_FRACTION:g} of the speed limit")
+        torque_limit = math.inf if plan.max_torque is None else TORQUE_MARGIN * plan.max_torque
+        if seg.locked and pred.peak_torque > torque_limit * (1 + tol):
+            out.append(f"{where} puts {pred.peak_torque:.4g} N*m on the clamp, over {TORQUE_MARGIN:g} of max_torque")
+    return tuple(out)
 
 
 def min_durations(plan: Plan, motor: MotorParams) -> np.ndarray:

@@ -29,8 +29,14 @@ Spec = Any
 _AXES = ("v_d", "v_q")
 #: Band limits for chirps and multisines (Hz; the upper one as a fraction of the sample rate).
 F_LOW, F_HIGH_FRACTION = 1.0, 0.45
-#: Shortest segment, as a fraction of the budget shared equally (s / s).
+#: Shortest segment, as a fraction of the budget shared equally (s / s); the plan margins' least durations
+#: (``_bench_limits.min_durations``) bind where they are longer.
 MIN_DURATION_FRACTION = 0.1
+#: A chirp's, multisine's or PRBS's amplitude under this share of its peak ``amplitude + |offset|`` leaves a
+#: constant: the optimised waveform is written, and its segment named, as the step it is.
+COLLAPSED_AMPLITUDE = 0.02
+#: The words of a segment name that say which waveform it carries.
+_KIND_WORDS = ("multisine", "chirp", "prbs")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -129,7 +135,7 @@ class _Param:
     u0: np.ndarray
     budget: float  # total duration (s)
     fixed_time: float  # time of the fixed-duration segments (s)
-    min_duration: float  # shortest free segment (s)
+    min_duration: np.ndarray  # shortest duration of each segment (s), shape (S,) (fixed ones: their own)
     grid: int  # samples per segment on the maximal grid
 
     @property
@@ -147,8 +153,9 @@ class _Param:
         if k == 0:
             return jnp.asarray(fixed)
         share = jax.nn.softmax(u[self.duration_start : self.duration_start + k])
-        spare = self.budget - self.fixed_time - k * self.min_duration
-        free_t = self.min_duration + spare * share
+        least = self.min_duration[free]
+        spare = self.budget - self.fixed_time - float(least.sum())
+        free_t = jnp.asarray(least) + spare * share
         idx = np.cumsum(free) - 1
         return jnp.where(free, free_t[np.clip(idx, 0, k - 1)], fixed)
 
@@ -160,7 +167,7 @@ class _Param:
         p = u[ax.start : ax.start + ax.size]
         if ax.kind in ("zero",):
             return {}
-        if ax.kind in ("constant", "step"):
+        if ax.kind in ("constant", "step", "ramp"):
             return {"peak": ax.bound * jax.nn.sigmoid(p[0])}
         if ax.kind == "samples":
             return {"gain": ax.bound * jax.nn.sigmoid(p[0])}
@@ -190,6 +197,11 @@ class _Param:
             scale = max(abs(spec["level"]), abs(spec.get("initial", 0.0)))
             level, initial = spec["level"] / scale, spec.get("initial", 0.0) / scale
             return q["peak"] * waveforms.step(self.grid, fs, level=level, initial=initial,
+                                              delay=spec.get("delay", 0.0), xp=jnp)
+        if ax.kind == "ramp":
+            scale = max(abs(spec["level"]), abs(spec.get("initial", 0.0)))
+            level, initial = spec["level"] / scale, spec.get("initial", 0.0) / scale
+            return q["peak"] * waveforms.ramp(self.grid, fs, level=level, initial=initial, rise=spec["rise"],
                                               delay=spec.get("delay", 0.0), xp=jnp)
         if ax.kind == "samples":
             return q["gain"] * jnp.asarray(ax.pattern)
@@ -222,14 +234,17 @@ class _Param:
         counts = _round_counts(durations, fs, np.array(self.free_duration))
         scales = np.ones(len(self.axes)) if scales is None else scales
         segments, specs = [], {}
+        taken = {seg.name for seg in self.plan.segments}
         for s, (seg, pair) in enumerate(zip(self.plan.segments, self.axes)):
             n = int(counts[s])
+            exact = {axis: self._exact_spec(u, ax, n, scales[s]) for axis, ax in zip(_AXES, pair)}
+            name = _named_for(seg.name, [ax.kind for ax in pair], list(exact.values()), taken)
             values = {}
-            for axis, ax in zip(_AXES, pair):
-                spec = self._exact_spec(u, ax, n, scales[s])
-                values[axis] = _generate(spec, n, fs)
-                specs[(seg.name, axis)] = spec
-            segments.append(Segment(seg.name, n / fs, seg.locked, v_d=values["v_d"], v_q=values["v_q"]))
+            for axis in _AXES:
+                values[axis] = _generate(exact[axis], n, fs)
+                specs[(name, axis)] = exact[axis]
+            segments.append(dataclasses.replace(seg, name=name, duration=n / fs, v_d=values["v_d"],
+                                                v_q=values["v_q"]))
         plan = dataclasses.replace(self.plan, segments=tuple(segments))
         return plan, specs
 
@@ -243,11 +258,13 @@ class _Param:
             return math.copysign(1.0, spec) * q["peak"] * scale
         if ax.kind == "samples":
             return {"kind": "samples", "values": [float(v) for v in q["gain"] * scale * ax.pattern[:n]]}
-        if ax.kind == "step":
+        if ax.kind in ("step", "ramp"):
             norm = max(abs(spec["level"]), abs(spec.get("initial", 0.0)))
             out = dict(spec, level=spec["level"] / norm * q["peak"] * scale,
                        initial=spec.get("initial", 0.0) / norm * q["peak"] * scale)
             return out
+        if q["amplitude"] <= COLLAPSED_AMPLITUDE * (q["amplitude"] + abs(q["offset"])):
+            return q["offset"] * scale  # collapsed to its offset: a constant, written as one
         out = dict(spec, amplitude=q["amplitude"] * scale, offset=q["offset"] * scale)
         if ax.kind == "chirp":
             out.update(f_start=q["f_start"], f_stop=q["f_stop"])
@@ -258,6 +275,21 @@ class _Param:
                 f_max = 0.49 * self.sample_rate
             out.update(f_min=q["f_min"], f_max=f_max)
         return {k: v for k, v in out.items() if v is not None}
+
+
+def _named_for(name: str, kinds: list[str], specs: list, taken: set[str]) -> str:
+    """``name``, with the waveform word it carries ("multisine", "chirp", "prbs") made "step" where that
+    waveform came out of the optimisation a constant (and the segment now carries no such waveform)."""
+    collapsed = [k for k, spec in zip(kinds, specs) if k in _KIND_WORDS and not isinstance(spec, dict)]
+    kept = {spec["kind"] for spec in specs if isinstance(spec, dict)}
+    new = name
+    for kind in collapsed:
+        if kind in new and kind not in kept:
+            new = new.replace(kind, "step")
+    if new != name and new in taken:
+        new = f"{new} (was {name})"
+    taken.add(new)
+    return new
 
 
 def _round_counts(durations: np.ndarray, fs: float, free: np.ndarray) -> np.ndarray:
@@ -282,27 +314,44 @@ def _axis_kind(spec: Spec) -> str:
 def _peak_of(spec: Spec) -> float:
     if not isinstance(spec, dict):
         return abs(float(spec))
-    if spec["kind"] == "step":
+    if spec["kind"] in ("step", "ramp"):
         return max(abs(spec["level"]), abs(spec.get("initial", 0.0)))
     if spec["kind"] == "samples":
         return float(np.max(np.abs(spec["values"]))) if len(spec["values"]) else 0.0
     return abs(spec.get("amplitude", 0.0)) + abs(spec.get("offset", 0.0))
 
 
-def _build_param(plan: Plan, specs: dict, budget: float) -> _Param:
+def free_durations(plan: Plan, specs: dict) -> np.ndarray:
+    """Per segment, whether the design may move its duration (all but measured sequences), shape (S,)."""
+    return np.array([not any(_axis_kind(specs[(s.name, a)]) == "samples" for a in _AXES) for s in plan.segments])
+
+
+def _build_param(plan: Plan, specs: dict, budget: float, least: np.ndarray | None = None,
+                 voltage_fraction: float = 1.0) -> _Param:
+    """The design space of ``plan``: durations at least ``least`` (s, per segment; default none) and at least
+    :data:`MIN_DURATION_FRACTION` of an equal share of the budget, voltages inside ``voltage_fraction`` of
+    the voltage circle."""
     fs = plan.sample_rate
-    limit = plan.voltage_limit
+    limit = voltage_fraction * plan.voltage_limit
     segs = plan.segments
-    free = tuple(not any(_axis_kind(specs[(s.name, a)]) == "samples" for a in _AXES) for s in segs)
+    free = tuple(bool(f) for f in free_durations(plan, specs))
     fixed_time = sum(s.duration for s, f in zip(segs, free) if not f)
     k = sum(free)
     if k and budget - fixed_time <= 0:
         raise DrivecalError(f"budget {budget:g} s leaves no time beside the {fixed_time:g} s of measured-sequence "
                             "segments (whose duration is fixed); raise --budget.")
-    min_duration = MIN_DURATION_FRACTION * (budget - fixed_time) / max(k, 1)
-    if k and min_duration * fs < 2:
+    share = MIN_DURATION_FRACTION * (budget - fixed_time) / max(k, 1)
+    least = np.zeros(len(segs)) if least is None else np.asarray(least, dtype=float)
+    min_duration = np.where(free, np.maximum(least, share), [s.duration for s in segs])
+    if k and share * fs < 2:
         raise DrivecalError(f"budget {budget:g} s is too short for {k} segments at {fs:g} Hz; raise --budget.")
-    longest = max([budget - fixed_time - (k - 1) * min_duration] * bool(k)
+    need = fixed_time + float(min_duration[np.array(free)].sum())
+    if k and need > budget * (1 + 1e-9):
+        raise DrivecalError(f"budget {budget:g} s is too short for the plan's margins: its segments need at least "
+                            f"{need:.3g} s (200 samples each, 3 electrical time constants per locked step, 1.5 "
+                            f"spin-up times per free one); raise --budget to {need:.3g} s or more.")
+    longest = max([budget - fixed_time - float(min_duration[np.array(free)].sum())
+                   + float(np.max(min_duration[np.array(free)]))] * bool(k)
                   + [s.duration for s, f in zip(segs, free) if not f])
     grid = int(math.ceil(longest * fs)) + 2
     old_total = sum(s.duration for s, f in zip(segs, free) if f)
@@ -320,7 +369,7 @@ def _build_param(plan: Plan, specs: dict, budget: float) -> _Param:
             kind = _axis_kind(spec)
             bound = float(bounds[a]) if kind != "samples" else float(bounds[a]) / max(peaks[a], 1e-300)
             pattern, init = None, []
-            if kind in ("constant", "step"):
+            if kind in ("constant", "step", "ramp"):
                 init = [_logit(peaks[a] / bounds[a])]
             elif kind == "samples":
                 pattern = np.zeros(grid)
@@ -342,9 +391,9 @@ def _build_param(plan: Plan, specs: dict, budget: float) -> _Param:
             start += len(init)
         axes.append(tuple(pair))
     duration_start = start
-    for seg, f in zip(segs, free):
+    for seg, f, lo in zip(segs, free, min_duration):
         if f:
-            u0.append(math.log(max(seg.duration * stretch - min_duration, 1e-3 * min_duration)))
+            u0.append(math.log(max(seg.duration * stretch - lo, 1e-3 * lo)))
     return _Param(plan=plan, axes=tuple(axes), free_duration=free, duration_start=duration_start,
                   u0=np.asarray(u0, dtype=float), budget=float(budget), fixed_time=float(fixed_time),
-                  min_duration=float(min_duration), grid=grid)
+                  min_duration=min_duration, grid=grid)

@@ -5,17 +5,25 @@ The predicted covariance of the estimates is ``Cov = sigma^2 (J^T J)^-1`` with
 Jacobian ``identify`` and ``fit`` use). A D-optimal plan minimises ``log det Cov``,
 i.e. the volume of the confidence ellipsoid, subject to
 
-* the voltage circle ``|v_dq| <= v_dc / sqrt(3)`` (held by construction: every
-  waveform is a bounded map of unconstrained variables),
-* the plan's current limit on the predicted peak ``|i_dq|`` of every segment and,
-  on free segments, a speed limit (``max_speed``, the no-load speed the voltage
-  circle allows, and the RK4 step bound) (smooth quadratic penalties),
-* a time budget: the durations are fractions of the budget (softmax).
+* the margins ``drivecal plan`` keeps (``_bench_limits``): voltages inside
+  :data:`VOLTAGE_FRACTION` of the circle ``|v_dq| <= v_dc / sqrt(3)`` (held by
+  construction: every waveform is a bounded map of unconstrained variables),
+  predicted peak ``|i_dq|`` under :data:`CURRENT_MARGIN` of the current limit, on
+  free segments the speed under :data:`SPEED_FRACTION` of the speed limit
+  (``max_speed``, the no-load speed the voltage circle allows, and the RK4 step
+  bound), on locked ones the clamp torque under :data:`TORQUE_MARGIN` of
+  ``max_torque`` (smooth quadratic penalties, then exact scaling);
+* a time budget: the durations are fractions of the budget (softmax) above each
+  segment's least (:func:`min_durations`: 200 samples, 3 electrical time constants
+  of a locked step's axes, 1.5 spin-up times of a free one); a plan shorter than
+  that gets a longer budget unless one is given.
 
 The structure of the plan is kept: which segments are locked or free, which
 axis carries which waveform kind. What moves is the waveform's level (step),
 amplitude and offset (chirp, multisine, PRBS), its band (chirp f_start/f_stop,
-multisine f_min/f_max), a gain (measured sequences) and the durations.
+multisine f_min/f_max), a gain (measured sequences) and the durations. A chirp,
+multisine or PRBS whose amplitude the optimum leaves at nothing is written as the
+constant it is, and its segment's name says "step" instead.
 
 To differentiate through the durations, each segment is simulated on a fixed,
 maximal sample grid and each sample's Fisher contribution is weighted by a
@@ -23,9 +31,10 @@ smooth window ``sigmoid((T_s - t_k) / tau)``. ``log det`` of the windowed
 Fisher matrix is minimised with optimistix's BFGS, its gradient taken by
 ``jax.grad`` through ``jax.jacfwd`` of the forward model. The result is then
 rounded to whole samples, built with the plan-file waveform generators, scaled
-down where the exact simulation still touches a limit, and judged exactly with
+down where the exact simulation still passes a margin, and judged exactly with
 :func:`drivecal.design.assess_design`. A plan that is not better than its input
-is never returned as an improvement.
+is never returned as an improvement; an input that breaks the margins is not
+returned at all.
 """
 
 from __future__ import annotations
@@ -40,8 +49,10 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from ._assess import MAX_ELECTRICAL_STEP, DesignReport, assess_design, predict_segments
-from ._design_space import _AXES, Spec, _Param, _build_param, infer_waveforms
+from ._assess import DesignReport, assess_design, predict_segments
+from ._bench_limits import (CURRENT_MARGIN, SPEED_FRACTION, TORQUE_MARGIN, VOLTAGE_FRACTION, margin_problems,
+                            min_durations, speed_limit)
+from ._design_space import _AXES, Spec, _Param, _build_param, free_durations, infer_waveforms
 from ..errors import DrivecalError, PlanError
 from ..model import Experiment, predict_currents, simulate_states
 from ..identify import assess_identifiability, sensitivity_jacobian
@@ -49,8 +60,13 @@ from ..physics import ESTIMATED, MotorParams
 from ..plan import Plan
 from ..results import solver_code, solver_message
 
-#: Peak current and speed are pushed to at most this fraction of their limits in the smooth problem.
+#: Peak current, speed and clamp torque are pushed to at most this fraction of the plan margins' limits
+#: (CURRENT_MARGIN of the current limit, SPEED_FRACTION of the speed limit, TORQUE_MARGIN of max_torque) in
+#: the smooth problem.
 LIMIT_MARGIN = 0.995
+#: Where the input plan is shorter than the plan margins' least durations and no budget is given, the budget
+#: becomes this many times their sum, room for the durations to move.
+BUDGET_ROOM = 1.2
 #: The peak's window falls this many times faster than the Fisher window (one sample period).
 PEAK_WINDOW_SHARPNESS = 2.0
 #: Exponent of the smooth minimum that scales a segment's voltage down to its limits (-).
@@ -63,16 +79,6 @@ SOFTMAX_SHARPNESS = 200.0
 # ----------------------------------------------------------------------------------------------
 # The smooth problem
 # ----------------------------------------------------------------------------------------------
-
-
-def speed_limit(plan: Plan, motor: MotorParams) -> float:
-    """Highest mechanical speed (rad/s) a free segment may reach: ``max_speed``, the no-load
-    speed ``v_dc/sqrt(3) / (p * lambda_m)`` and the RK4 bound of ``design`` (rad per sample)."""
-    p = float(motor.pole_pairs)
-    limits = [plan.voltage_limit / (p * float(motor.lambda_m)), MAX_ELECTRICAL_STEP * plan.sample_rate / p]
-    if plan.max_speed is not None:
-        limits.append(float(plan.max_speed))
-    return min(limits)
 
 
 def _soft_peak(x, log_window, limit):
@@ -98,7 +104,11 @@ def _objective_fn(par: _Param, motor: MotorParams, names: tuple[str, ...]):
     theta0 = motor.vector(names)
     free_rotor = jnp.asarray([0.0 if seg.locked else 1.0 for seg in plan.segments])
     t_mid = (jnp.arange(grid) + 0.5) / fs
-    i_lim, w_lim = float(plan.current_limit), speed_limit(plan, motor)
+    i_lim, w_lim = CURRENT_MARGIN * float(plan.current_limit), SPEED_FRACTION * speed_limit(plan, motor)
+    t_lim = math.inf if plan.max_torque is None else TORQUE_MARGIN * float(plan.max_torque)
+    locked_rotor = 1.0 - free_rotor
+    kt = 1.5 * float(motor.pole_pairs) * float(motor.lambda_m)  # torque per i_q (N*m/A)
+    kr = 1.5 * float(motor.pole_pairs) * (float(motor.Ld) - float(motor.Lq))  # per i_d * i_q (N*m/A^2)
 
     def experiment(volts):
         return eqx.tree_at(lambda e: e.voltages, template, volts.reshape(s_count * grid, 2))
@@ -106,7 +116,9 @@ def _objective_fn(par: _Param, motor: MotorParams, names: tuple[str, ...]):
     def peaks(states, log_window):
         magnitude = jnp.sqrt(states[:, 0] ** 2 + states[:, 1] ** 2 + 1e-12).reshape(s_count, grid)
         speed = jnp.abs(states[:, 2]).reshape(s_count, grid)
-        return _soft_peak(magnitude, log_window, i_lim), _soft_peak(speed, log_window, w_lim)
+        torque = jnp.sqrt((kt * states[:, 1] + kr * states[:, 0] * states[:, 1]) ** 2 + 1e-12).reshape(s_count, grid)
+        torque_peak = _soft_peak(torque, log_window, t_lim) if math.isfinite(t_lim) else jnp.zeros(s_count)
+        return _soft_peak(magnitude, log_window, i_lim), _soft_peak(speed, log_window, w_lim), torque_peak
 
     def scaled(u):
         durations = par.durations(u)
@@ -115,9 +127,11 @@ def _objective_fn(par: _Param, motor: MotorParams, names: tuple[str, ...]):
         # rising current is not seen rising on past it.
         raw = par.voltages(u, durations) * jnp.exp(log_window)[..., None]
         inside = jax.nn.log_sigmoid((durations[:, None] - t_mid) * fs * PEAK_WINDOW_SHARPNESS)
-        peak_i, peak_w = peaks(simulate_states(motor, experiment(raw)), inside)
+        peak_i, peak_w, peak_t = peaks(simulate_states(motor, experiment(raw)), inside)
         over = (peak_i / (LIMIT_MARGIN * i_lim)) ** SCALE_SHARPNESS + free_rotor * (
             peak_w / (LIMIT_MARGIN * w_lim)) ** SCALE_SHARPNESS
+        if math.isfinite(t_lim):
+            over = over + locked_rotor * (peak_t / (LIMIT_MARGIN * t_lim)) ** SCALE_SHARPNESS
         scales = (1.0 + over) ** (-1.0 / SCALE_SHARPNESS)
         return scales, raw * scales[:, None, None], log_window
 
@@ -180,8 +194,9 @@ def _log_det(cov: np.ndarray) -> float:
 
 def _repair(par: _Param, u: np.ndarray, scales: np.ndarray, motor: MotorParams) -> tuple[Plan, dict]:
     """The exact plan for ``u`` and segment ``scales``, each segment scaled down further until its
-    exact peaks are inside the limits."""
-    i_lim, w_lim = float(par.plan.current_limit), speed_limit(par.plan, motor)
+    exact peaks are inside the plan margins' limits (:func:`~drivecal.design.margin_problems`)."""
+    i_lim, w_lim = CURRENT_MARGIN * float(par.plan.current_limit), SPEED_FRACTION * speed_limit(par.plan, motor)
+    t_lim = math.inf if par.plan.max_torque is None else TORQUE_MARGIN * float(par.plan.max_torque)
     for _ in range(12):
         plan, specs = par.to_plan(u, scales)
         factors = np.ones(len(scales))
@@ -193,6 +208,8 @@ def _repair(par: _Param, u: np.ndarray, scales: np.ndarray, motor: MotorParams) 
                 factors[s] = min(factors[s], 0.999 * i_lim / pred.peak_current)
             if not pred.locked and pred.peak_speed > w_lim:
                 factors[s] = min(factors[s], 0.999 * w_lim / pred.peak_speed)
+            if pred.locked and pred.peak_torque > t_lim:
+                factors[s] = min(factors[s], 0.999 * t_lim / pred.peak_torque)
         if np.all(factors == 1.0):
             return plan, specs
         scales = scales * factors
@@ -219,7 +236,9 @@ class OptimalDesign:
         logdet_before, logdet_after: ``log det`` of those covariances (natural log).
         iterations: BFGS steps taken.
         converged: the optimiser met its tolerance (the plan is used either way if better).
-        improved: the returned plan is better than the input (else ``plan_after is plan_before``).
+        improved: the returned plan is better than the input. When it is not, ``plan_after is plan_before``
+            where the input holds the plan margins; an input that breaks them gives the best plan that holds
+            them, even at a larger confidence volume (``message`` says so).
         message: how the optimisation ended, in words.
     """
 
@@ -328,7 +347,8 @@ def optimize_plan(
         waveforms_spec: per ``(segment name, axis)`` the waveform spec, as
             :func:`load_plan_waveforms` returns; default :func:`infer_waveforms`
             (constants, or per-sample sequences that only get a gain).
-        budget: total duration (s) of the improved plan; default the input's.
+        budget: total duration (s) of the improved plan; default the input's, or
+            :data:`BUDGET_ROOM` times the least durations the margins need where the input is shorter.
         noise_sigma: sensor noise (A) for the predicted intervals (it scales
             every interval alike and does not change the optimum).
         names: parameters to estimate.
@@ -344,9 +364,17 @@ def optimize_plan(
     if missing:
         raise DrivecalError(f"no waveform spec for {missing[0][0]!r} {missing[0][1]}; pass one for every axis.")
     total = sum(s.duration for s in plan.segments)
-    budget = total if budget is None else float(budget)
-    if not (budget > 0 and math.isfinite(budget)):
+    if budget is not None and not (budget > 0 and math.isfinite(budget)):
         raise DrivecalError(f"budget must be a positive number of seconds, got {budget!r}.")
+    least = min_durations(plan, motor)
+    free = free_durations(plan, specs)
+    need = sum(s.duration for s, f in zip(plan.segments, free) if not f) + float(least[free].sum())
+    raised = ""
+    if budget is None and total < need * (1 - 1e-9):  # the input breaks the margins' durations: room to hold them
+        budget = BUDGET_ROOM * need
+        raised = (f"budget raised from {total:.4g} s to {budget:.4g} s: the plan margins' least durations "
+                  f"(200 samples a segment, 3 electrical time constants a locked step) need {need:.4g} s")
+    budget = total if budget is None else float(budget)
     ident = assess_identifiability(Experiment.from_plan(plan), motor, noise_sigma=noise_sigma, names=names)
     gaps = ident.dead_params + ident.confounded_params
     if gaps:
@@ -356,7 +384,7 @@ def optimize_plan(
     cov_before = predicted_covariance(plan, motor, noise_sigma=noise_sigma, names=names)
     logdet_before = _log_det(cov_before)
 
-    par = _build_param(plan, specs, budget)
+    par = _build_param(plan, specs, budget, least, VOLTAGE_FRACTION)
     objective, scales = _objective_fn(par, motor, names)
     solver = optx.BFGS(rtol=1e-3, atol=1e-3)
     sol = optx.minimise(objective, solver, jnp.asarray(par.u0), max_steps=max_steps, throw=False)
@@ -364,17 +392,21 @@ def optimize_plan(
     iterations = int(sol.stats["num_steps"])
     converged = bool(sol.result == optx.RESULTS.successful)
     message = "converged" if converged else (solver_message(solver_code(sol.result)) or "stopped")
+    if raised:
+        message = f"{raised}; {message}"
+    # An input outside the plan margins is not kept: the result holds them even at a larger volume.
+    input_kept = report_before.ok and not margin_problems(report_before, motor) and not raised
 
     try:
         candidate, cand_specs = _repair(par, u, np.asarray(scales(jnp.asarray(u))), motor)
         report_after = assess_design(candidate, motor, noise_sigma=noise_sigma, names=names)
         cov_after = predicted_covariance(candidate, motor, noise_sigma=noise_sigma, names=names)
         logdet_after = _log_det(cov_after)
-        usable = report_after.ok and logdet_after < logdet_before
+        usable = report_after.ok and (logdet_after < logdet_before or not input_kept)
     except PlanError as exc:  # e.g. a band the exact waveform generator refuses
         usable, message = False, f"{message}; the rounded plan was refused: {exc}"
     if not usable:
-        if not report_before.ok or abs(budget - total) * plan.sample_rate >= 0.5:
+        if not input_kept or abs(budget - total) * plan.sample_rate >= 0.5:
             raise DrivecalError(f"no feasible, identifiable plan better than the input was found within "
                                 f"{budget:g} s; lower the plan's amplitudes, change its segments or its budget.")
         candidate, cand_specs, report_after, cov_after, logdet_after = (
@@ -388,5 +420,6 @@ def optimize_plan(
         budget=sum(s.duration for s in candidate.segments), noise_sigma=float(noise_sigma),
         se_before=se_b, se_after=se_a, ci95_before=ci_b, ci95_after=ci_a,
         covariance_before=cov_before, covariance_after=cov_after, logdet_before=logdet_before,
-        logdet_after=logdet_after, iterations=iterations, converged=converged, improved=usable, message=message,
+        logdet_after=logdet_after, iterations=iterations, converged=converged,
+        improved=usable and logdet_after < logdet_before, message=message,
     )
