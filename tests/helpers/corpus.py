@@ -6,7 +6,7 @@ For each motor of a table such as ``shared/data/motors.csv`` (566 real PMSMs):
    factor in ``1 +- PRIOR_SPREAD`` (a datasheet good to 10 %); pole pairs, J
    and B are known;
 2. **bench limits**: current limit ``CURRENT_LIMIT_FACTOR * i_rated``, the
-   table's V_dc and rated speed (max_speed);
+   table's V_dc and rated speed (max_speed), an inverter without dead time;
 3. **plan**: :func:`drivecal.autoplan.auto_design` on the datasheet motor
    (feasible and identifiable, or the motor fails with the reason);
 4. **bench**: the plan run on the Jaxonomy engine with the *true* motor
@@ -200,8 +200,10 @@ def validate_motor(entry: CorpusMotor, seed: int | tuple[int, ...]) -> MotorResu
     seconds = {}
     t0 = time.perf_counter()
     try:
+        # An inverter that compensates its dead time (dead_time=0): the truth has none, so the plan must not add
+        # a dead-time drop to its steps (tests/design/test_bench_limits.py runs ten motors with one).
         report = auto_design(prior, v_dc=entry.v_dc, current_limit=entry.current_limit, max_speed=entry.w_rated,
-                             noise_sigma=entry.noise_sigma)
+                             noise_sigma=entry.noise_sigma, dead_time=0.0)
     except DrivecalError as exc:
         return MotorResult(entry.name, error=f"no plan: {exc}", truth=truth)
     plan = report.plan

@@ -2,7 +2,7 @@
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
 from ._assess import DesignReport, MAX_ELECTRICAL_STEP, SegmentPrediction, assess_design, predict_segments
-from ._bench_limits import (DEAD_TIME_MARGIN, DEFAULT_DEAD_TIME, DEFAULT_SAMPLE_RATE, SAMPLE_RATES,
+from ._bench_limits import (DEAD_TIME_MARGIN, DEFAULT_DEAD_TIME, DEFAULT_SAMPLE_RATE, RIPPLE_FRACTION, SAMPLE_RATES,
                             SPIN_SPEED_FRACTION, TORQUE_MARGIN, BenchLimits, choose_sample_rate, clamp_current,
                             dead_time_drop, expected_dead_voltage, expected_dead_width,
                             margin_problems, min_durations)
@@ -28,8 +28,8 @@ __all__ = ["assess_design", "auto_design", "auto_plan", "BenchLimits", "BUDGET_R
            "MIN_DURATION_FRACTION", "min_durations", "MIN_LOCKED_TIME_CONSTANTS", "MIN_SAMPLE_RATE",
            "MIN_SAMPLES_PER_TIME_CONSTANT", "MIN_SEGMENT_SAMPLES", "MIN_SPIN_TIME_CONSTANTS", "MotorTimes",
            "NOISE_FRACTION", "OptimalDesign", "optimize_plan", "PEAK_WINDOW_SHARPNESS", "PLAN_MAX_ELECTRICAL_STEP",
-           "predict_segments", "predicted_covariance", "SAMPLE_RATES", "SAMPLES_PER_TIME_CONSTANT",
-           "SATURATED_INDUCTANCE_FRACTION", "SATURATION_LEVELS", "SATURATION_TOP_FRACTION", "SCALE_SHARPNESS",
-           "SegmentPrediction", "SETTLE_SPIN_TIMES", "SOFTMAX_SHARPNESS", "SPEED_FRACTION", "speed_limit",
-           "SPIN_SPEED_FRACTION", "SPIN_TIME_CONSTANTS", "STEP_CURRENT_FRACTION", "TORQUE_MARGIN",
-           "VOLTAGE_FRACTION", "with_saturation_steps"]
+           "predict_segments", "predicted_covariance", "RIPPLE_FRACTION", "SAMPLE_RATES",
+           "SAMPLES_PER_TIME_CONSTANT", "SATURATED_INDUCTANCE_FRACTION", "SATURATION_LEVELS",
+           "SATURATION_TOP_FRACTION", "SCALE_SHARPNESS", "SegmentPrediction", "SETTLE_SPIN_TIMES",
+           "SOFTMAX_SHARPNESS", "SPEED_FRACTION", "speed_limit", "SPIN_SPEED_FRACTION", "SPIN_TIME_CONSTANTS",
+           "STEP_CURRENT_FRACTION", "TORQUE_MARGIN", "VOLTAGE_FRACTION", "with_saturation_steps"]

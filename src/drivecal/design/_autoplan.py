@@ -93,6 +93,11 @@ RAMP_OVERSHOOT = 1.1
 #: The second locked d-step's current, as a share of the first's, where v_dead is fitted: two currents tell
 #: the dead-time voltage (the same at both) from R (proportional to the current).
 DEAD_TIME_SECOND_LEVEL = 0.5
+#: Where v_dead is fitted, the locked steps add the expected dead-time drop and leave room under the current
+#: limit for a dead-time voltage this share off the expected one.
+DEAD_TIME_TOLERANCE = 0.1
+#: ... and refuse where that leaves the d-step less than this share of the current limit.
+MIN_DEAD_TIME_STEP = 0.2
 _ATTEMPTS = 8
 
 
@@ -266,10 +271,11 @@ def auto_design(
     w_cap = SPEED_FRACTION * w_limit
     tau = min(times.tau_d, times.tau_q)
     i_step = STEP_CURRENT_FRACTION * current_limit
+    ripple = v_dc / (8.0 * min(float(motor.Ld), float(motor.Lq)) * current_limit)  # PWM ripple x rate / limit
     ramp = bool(lam) and not mechanics  # the standard spin-up: a ramp up to a set speed
     if ramp:
         w_spin = SPIN_SPEED_FRACTION * w_limit
-        fs, fs_source = choose_sample_rate(tau, RAMP_OVERSHOOT * p * w_spin, sample_rate)
+        fs, fs_source = choose_sample_rate(tau, RAMP_OVERSHOOT * p * w_spin, sample_rate, ripple)
         w_spin = min(w_spin, PLAN_MAX_ELECTRICAL_STEP * fs / (RAMP_OVERSHOOT * p))  # a slow bench: spin slower
         v_spin = min(p * lam * w_spin, v_max)
         # Accelerate at half the steady current a locked step draws (refined below on the prediction). With
@@ -281,7 +287,7 @@ def auto_design(
         # The spin-up starts like a locked q-step (current <= v/R) and settles at w = v/(p lambda_m),
         # after an overshoot set by the electromechanical damping.
         v_spin = min(i_step * r, v_max, w_cap * p * lam / times.overshoot) if lam else 0.0
-        fs, fs_source = choose_sample_rate(tau, times.overshoot * v_spin / lam if lam else 0.0, sample_rate)
+        fs, fs_source = choose_sample_rate(tau, times.overshoot * v_spin / lam if lam else 0.0, sample_rate, ripple)
         rise = 0.0
     v_dead = expected_dead_voltage(motor, v_dc, dead_time, fs)
     i_dead = expected_dead_width(motor, v_dc, fs)
@@ -291,6 +297,20 @@ def auto_design(
     # Under the margin the dead time is part of what a step measures: the standard plan then fits v_dead,
     # with a second d-step current to tell it from R and every locked step adding its drop.
     fit_dead = 0 < min(v_d_step, v_q_step) < need and not (mechanics or saturation)
+    if fit_dead:
+        # Every step then adds the expected dead-time drop, and a dead-time voltage DEAD_TIME_TOLERANCE off moves
+        # its current by that share of the drop over R: the d-step goes as high as leaves that room (where the
+        # dead time's smooth sign has turned, which tells it from R), the q-step no higher.
+        slack = DEAD_TIME_TOLERANCE * abs(dead_time_drop(v_dead, i_dead, current_limit, 0.0)[0]) / r
+        i_top = min(CURRENT_MARGIN * current_limit, current_limit - slack)
+        if i_top < MIN_DEAD_TIME_STEP * current_limit:
+            raise DrivecalError(
+                f"the expected dead-time voltage {v_dead:.3g} V is too large for open-loop locked steps on this motor: "
+                f"{DEAD_TIME_TOLERANCE * 100:g} % of it drives {slack:.3g} A through R = {r:.3g} ohm, leaving no step "
+                f"current under the limit {current_limit:g} A; give the bench's dead time (--dead-time, 0 where the "
+                "inverter compensates it) or the motor file's v_dead.")
+        v_d_step = min(i_top * r, v_max)
+        v_q_step = min(v_q_step, v_d_step)
     if saturation:
         v_top = min(SATURATION_TOP_FRACTION * current_limit * r, v_max)
         steps = saturation_steps(names, v_top, times.tau_d, times.tau_q)

@@ -65,6 +65,9 @@ MIN_SEGMENT_SAMPLES = 200
 DEFAULT_SAMPLE_RATE = 10_000.0
 #: The rates auto-plan steps up through when a motor needs more than the default (Hz): 10 to 40 kHz.
 SAMPLE_RATES = (10_000.0, 16_000.0, 20_000.0, 25_000.0, 32_000.0, 40_000.0)
+#: Largest PWM current ripple (half its peak-to-peak, ``v_dc / (8 L f_s)``) as a share of the current limit that
+#: the default sample rate accepts: a drive's PWM rate keeps the ripple a small part of the current.
+RIPPLE_FRACTION = 0.2
 #: Dead time per switching edge when the bench's is not given (s): a typical IGBT inverter's.
 DEFAULT_DEAD_TIME = 1e-6
 #: A locked step's voltage must be this many times the expected dead-time voltage, or v_dead is fitted.
@@ -108,15 +111,17 @@ class MotorTimes:
         return 1.0 + math.exp(-math.pi * self.zeta / math.sqrt(1.0 - self.zeta**2))
 
 
-def choose_sample_rate(tau: float, w_e_peak: float, given: float | None) -> tuple[float, str]:
+def choose_sample_rate(tau: float, w_e_peak: float, given: float | None, ripple: float = 0.0) -> tuple[float, str]:
     """The plan's sample rate (Hz) and where it came from, in words.
 
     ``tau``: the fastest electrical time constant (s); ``w_e_peak``: the spin-up's highest electrical
-    speed (rad/s). A ``given`` rate is the bench's: kept when it gives at least
+    speed (rad/s); ``ripple``: the PWM current ripple times the rate over the current limit
+    (``v_dc / (8 L) / current_limit``, Hz). A ``given`` rate is the bench's: kept when it gives at least
     :data:`MIN_SAMPLES_PER_TIME_CONSTANT` samples per ``tau``. Otherwise the first of
-    :data:`SAMPLE_RATES` with :data:`SAMPLES_PER_TIME_CONSTANT` samples per ``tau`` and at most
-    :data:`PLAN_MAX_ELECTRICAL_STEP` rad per sample, else the last one if it gives
-    :data:`MIN_SAMPLES_PER_TIME_CONSTANT` samples per ``tau`` (the spin-up is then held slower).
+    :data:`SAMPLE_RATES` with :data:`SAMPLES_PER_TIME_CONSTANT` samples per ``tau``, at most
+    :data:`PLAN_MAX_ELECTRICAL_STEP` rad per sample and a ripple at most :data:`RIPPLE_FRACTION` of the
+    current limit, else the last one if it gives :data:`MIN_SAMPLES_PER_TIME_CONSTANT` samples per
+    ``tau`` (the spin-up is then held slower).
 
     Raises:
         DrivecalError: the rate cannot resolve ``tau`` (one sentence, with the rate it needs).
@@ -129,12 +134,15 @@ def choose_sample_rate(tau: float, w_e_peak: float, given: float | None) -> tupl
             )
         return float(given), "the bench's"
     for rate in SAMPLE_RATES:
-        if rate * tau >= SAMPLES_PER_TIME_CONSTANT and w_e_peak / rate <= PLAN_MAX_ELECTRICAL_STEP:
+        if (rate * tau >= SAMPLES_PER_TIME_CONSTANT and w_e_peak / rate <= PLAN_MAX_ELECTRICAL_STEP
+                and ripple / rate <= RIPPLE_FRACTION):
             if rate == DEFAULT_SAMPLE_RATE:
                 return rate, "default: a typical inverter's PWM rate"
-            why = ("the motor's electrical time constant" if DEFAULT_SAMPLE_RATE * tau < SAMPLES_PER_TIME_CONSTANT
-                   else "the spin-up's electrical speed")
-            return rate, f"raised from the default {DEFAULT_SAMPLE_RATE / 1e3:g} kHz for {why}"
+            base = DEFAULT_SAMPLE_RATE
+            why = ("the motor's electrical time constant" if base * tau < SAMPLES_PER_TIME_CONSTANT
+                   else "the spin-up's electrical speed" if w_e_peak / base > PLAN_MAX_ELECTRICAL_STEP
+                   else "the PWM current ripple")
+            return rate, f"raised from the default {base / 1e3:g} kHz for {why}"
     top = SAMPLE_RATES[-1]
     if top * tau < MIN_SAMPLES_PER_TIME_CONSTANT:
         raise DrivecalError(
