@@ -310,7 +310,15 @@ def auto_design(
                 f"current under the limit {current_limit:g} A; give the bench's dead time (--dead-time, 0 where the "
                 "inverter compensates it) or the motor file's v_dead.")
         v_d_step = min(i_top * r, v_max)
-        v_q_step = min(v_q_step, v_d_step)
+        # the clamp too: a q current the dead time's error raises by slack_q must stay under its torque margin
+        slack_q = DEAD_TIME_TOLERANCE * abs(dead_time_drop(v_dead, i_dead, 0.0, current_limit)[1]) / r
+        i_q = min(v_q_step / r, clamp_current(motor, max_torque) - slack_q, i_top)
+        if max_torque is not None and i_q < MIN_DEAD_TIME_STEP * STEP_CURRENT_FRACTION * current_limit:
+            raise DrivecalError(
+                f"the rotor clamp's limit {max_torque:g} N*m leaves the locked q-step {max(i_q, 0.0):.3g} A once "
+                f"{DEAD_TIME_TOLERANCE * 100:g} % of the expected dead-time voltage {v_dead:.3g} V is allowed for "
+                f"({slack_q:.3g} A); raise --max-torque, or give the bench's dead time (--dead-time).")
+        v_q_step = i_q * r
     if saturation:
         v_top = min(SATURATION_TOP_FRACTION * current_limit * r, v_max)
         steps = saturation_steps(names, v_top, times.tau_d, times.tau_q)
