@@ -267,3 +267,33 @@ def test_the_cli_reference_is_every_commands_help():
         for param in command.params:
             for opt in param.opts if isinstance(param, click.Option) else ():
                 assert opt in section, (name, opt)
+
+
+def github_slug(heading: str) -> str:
+    """A heading's anchor as GitHub makes it, and the site too (mkdocs.yml's pymdownx slugify)."""
+    text = re.sub(r"[^\w\- ]", "", heading.strip().lower())
+    return text.replace(" ", "-")
+
+
+def anchors(page: Path) -> set[str]:
+    found, fence = set(), False
+    for line in page.read_text(encoding="utf-8").split("\n"):
+        if FENCE.match(line):
+            fence = not fence
+        elif not fence and (m := re.match(r"^#{1,6} (.*)$", line)):
+            found.add(github_slug(m.group(1)))
+    return found
+
+
+def test_the_readmes_links_reach_pages_and_anchors():
+    """The README is not part of the site (mkdocs checks the pages' links): its relative links checked here."""
+    readme = ROOT / "README.md"
+    links = re.findall(r"\]\(([^)\s]+)\)", readme.read_text(encoding="utf-8"))
+    relative = [link for link in links if not re.match(r"^[a-z]+:", link)]
+    assert len(relative) >= 10
+    for link in relative:
+        path, _, anchor = link.partition("#")
+        target = (ROOT / path) if path else readme
+        assert target.exists(), f"README.md links to {link}: no such file"
+        if anchor:
+            assert anchor in anchors(target), f"README.md links to {link}: no such anchor in {path}"
