@@ -249,7 +249,6 @@ def test_the_cli_reference_is_every_commands_help():
     import click
 
     from drivecal.cli import cli
-    from drivecal.cli._common import COMMANDS
 
     spec = importlib.util.spec_from_file_location("docs_hooks", ROOT / "docs" / "hooks.py")
     hooks = importlib.util.module_from_spec(spec)
@@ -260,7 +259,9 @@ def test_the_cli_reference_is_every_commands_help():
     assert hooks.MARKER not in rendered and "$ drivecal --help" in rendered
     sections = rendered.split("\n## ")
     ctx = click.Context(cli, info_name="drivecal")
-    for name in COMMANDS:
+    names = cli.list_commands(ctx)
+    assert len(names) >= 10
+    for name in names:
         section = next(s for s in sections if s.startswith(f"`drivecal {name}`"))
         command = cli.get_command(ctx, name)
         assert f"Usage: drivecal {name} " in section
