@@ -3,7 +3,7 @@
 Every physical value is either a plain number in SI units or a string with a
 unit, e.g. ``R = "0.45 ohm"``, ``Ld = "3.2 mH"``. A wrong key or a unit of the
 wrong kind is refused with one sentence naming the file, the key and the fix.
-The schema is documented in the README ("Motor files") and exemplified in
+The schema is documented in docs/bench-files.md ("Motor files") and exemplified in
 ``examples/``.
 """
 
