@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import drivecal as dc
-from drivecal.data import choose_speed, load_bench, speed_lattice, speed_resolution, update_period
+from drivecal.data import choose_speed, inspect_log, load_bench, speed_lattice, speed_resolution, update_period
 
 COUNTS = 4096
 STEP = 2 * math.pi / COUNTS * 1000.0  # one count per 1 ms: 1.534 rad/s
@@ -89,3 +89,40 @@ def test_an_exact_speed_stays_the_input():
     choice = choose_speed(bench, dc.DEFAULT_MOTOR, dc.ESTIMATED)
     assert choice.mode == "input" and not choice.flagged and choice.reason == ""
     assert bench.speed_resolution().step is None and choice.ratio < 1e-3
+
+
+def _bench(w: np.ndarray, noise: float = 0.02) -> dc.BenchData:
+    """A free segment with speed ``w`` and currents of 5 A on q plus ``noise`` (no engine: choose_speed reads
+    only the speed, the currents' noise and their flux)."""
+    n = w.size
+    currents = np.stack([np.zeros(n), np.full(n, 5.0)], axis=1) + np.random.default_rng(1).normal(0, noise, (n, 2))
+    seg = dc.SegmentData("free spin-up", False, np.arange(n) / 1000.0, np.zeros((n, 2)), currents, w_m=w)
+    return dc.BenchData((seg,), 1000.0, "b.csv")
+
+
+def test_choose_speed_takes_a_coarse_speed_as_an_output_where_j_and_b_are_known_and_says_why():
+    coarse, names = _bench(_encoder_speed(1000.0)), dc.ESTIMATED
+    choice = choose_speed(coarse, dc.DEFAULT_MOTOR, names)
+    assert choice.mode == "output" and choice.flagged and choice.requested is None
+    assert choice.ratio > 10 and "a second measured output instead" in choice.reason
+    kept = choose_speed(coarse, dc.DEFAULT_MOTOR, names, mechanics_given=False)
+    assert kept.mode == "input" and kept.flagged and "states no J and B" in kept.reason
+    asked = choose_speed(coarse, dc.DEFAULT_MOTOR, names, speed="input")
+    assert asked.mode == "input" and "--simulated-speed" in asked.reason
+    assert choose_speed(coarse, dc.DEFAULT_MOTOR, names, speed="output").reason == ""
+    # noise-free currents leave nothing to weigh the speed against: not judged
+    clean = choose_speed(_bench(_encoder_speed(1000.0), noise=0.0), dc.DEFAULT_MOTOR, names)
+    assert clean.mode == "input" and clean.ratio is None and not clean.flagged
+    # a motor file states J and B or not
+    assert dc.motor_from_dict({"R": 0.45, "J": 1e-3, "B": 1e-4}).mechanics_given
+    assert not dc.motor_from_dict({"R": 0.45}).mechanics_given
+
+
+def test_inspect_names_the_steps_of_a_quantised_speed_channel(tmp_path):
+    w = _encoder_speed(1000.0)
+    log = tmp_path / "run.csv"
+    rows = "".join(f"{k / 1000.0!r},0,12,0,5,{float(x)!r}\n" for k, x in enumerate(w))
+    log.write_text("time,Ud,Uq,Id,Iq,n_mech\n" + rows)  # speed in rad/s (no unit stated: taken as SI)
+    found = inspect_log(log)
+    assert found.columns["w_m"] == "n_mech"
+    assert found.speed == "steps of 1.534 rad/s: one count of a 4096-count encoder per 1 ms, new every sample"

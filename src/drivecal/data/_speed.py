@@ -139,7 +139,7 @@ class SpeedResolution:
     @property
     def counts_per_rev(self) -> float | None:
         """The encoder's counts per revolution if the steps are one count per update period, else None."""
-        if self.step is None:
+        if self.step is None or not math.isfinite(self.sample_rate):
             return None
         counts = 2.0 * math.pi * self.sample_rate / self.hold / self.step
         whole = round(counts)
@@ -217,7 +217,7 @@ def choose_speed(bench, motor: MotorParams, names: tuple[str, ...], *, speed: st
     """What a fit of ``bench`` makes of its measured speed.
 
     ``speed`` given (``--speed``, or the legacy flags turned into it) is obeyed, a flagged speed used as an
-    input noted in ``reason``. Otherwise: a second output where mechanics are estimated; else an input
+    input noted in ``reason`` (empty where nothing changed or needs saying). Otherwise: a second output where mechanics are estimated; else an input
     unless the speed is flagged (:data:`INPUT_ERROR_RATIO_MAX`), when it becomes a second output weighed by
     its resolution (``SpeedResolution.sigma``, unless a ``speed_noise`` is stated) if the motor's J and B are
     known (``mechanics_given``); without them it stays an input and ``reason`` says so.
@@ -245,11 +245,11 @@ def choose_speed(bench, motor: MotorParams, names: tuple[str, ...], *, speed: st
             f"{ratio:.3g} times the current noise's variance to the estimates (limit {INPUT_ERROR_RATIO_MAX:g})")
     weight = (f"{speed_noise:.3g} rad/s, stated" if speed_noise else f"{resolution.sigma:.3g} rad/s, from its "
               "resolution")
-    if speed is not None:
-        fix = ("; --speed output or --simulated-speed would not take it as exact" if speed == "input" else "")
-        return SpeedChoice(speed, speed, resolution, ratio, True, f"{what}; {speed} as asked (--speed){fix}")
-    if default == "output":
-        return SpeedChoice("output", None, resolution, ratio, True, f"{what}; a second measured output")
+    if speed is not None:  # as asked: only an input is worth a word
+        why = f"{what}; an input as asked (--speed input); --speed output or --simulated-speed would not take it as exact"
+        return SpeedChoice(speed, speed, resolution, ratio, True, why if speed == "input" else "")
+    if default == "output":  # mechanics estimated: a second output anyway
+        return SpeedChoice("output", None, resolution, ratio, True)
     if mechanics_given:
         return SpeedChoice("output", None, resolution, ratio, True,
                            f"{what}; so a second measured output instead (noise {weight}, the "
