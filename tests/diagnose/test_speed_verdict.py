@@ -35,6 +35,11 @@ def test_the_verdict_puts_mismatch_down_to_a_coarse_speed_input_and_advises_its_
     assert "4096-count encoder" in first and "--simulated-speed" in first and "--speed output" in first
     text = " ".join(judged["details"])
     assert "delay_samples" not in text and "signature like that of delay" in text  # not 'raise delay_samples'
+    # an effect the selection fitted to the speed's errors is marked as possibly theirs
+    fitted = {"effect": "dead_time", "included": True, "how": "selected", "p_value": 1e-16,
+              "estimate": {"v_dead": {"value": -0.19, "se": 0.02}}}
+    judged = verdict({**_result("input", white=False), "effects": {"effects": [fitted]}})
+    assert judged["details"][-1].endswith("the speed input's errors can leave its signature too")
 
 
 def test_a_coarse_speed_taken_as_an_output_is_a_note_not_a_mismatch():

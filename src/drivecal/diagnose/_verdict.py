@@ -195,7 +195,8 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
                               if v["value"] is not None and v["se"] is not None)
             kind = "magnetic saturation" if choice["effect"] in MAGNETIC_EFFECTS else "bench effect"
             details.append(f"{kind} fitted because the data support it: {choice['effect'].replace('_', ' ')}"
-                           f" ({shown}; likelihood-ratio p = {choice['p_value']:.2g})")
+                           f" ({shown}; likelihood-ratio p = {choice['p_value']:.2g})"
+                           + ("; the speed input's errors can leave its signature too" if speed[1] else ""))
     if not_ident:
         details.append(f"{', '.join(not_ident)} not identifiable by this plan: held at the prior, not calibrated")
     if speed[0]:
