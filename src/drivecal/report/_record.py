@@ -72,6 +72,7 @@ def build_result(
     effects: Any = NOT_RECORDED,
     tolerance: dict[str, Tolerance] | None = None,
     flux_maps: Any = None,
+    speed: Any = NOT_RECORDED,
 ) -> dict[str, Any]:
     """The full result JSON of one fit (a plain, JSON-ready dict).
 
@@ -96,6 +97,8 @@ def build_result(
             result's ``spec`` section judges the estimates against it (:func:`drivecal.results.judge_spec`).
         flux_maps: the maps' section (``drivecal.maps.FluxMaps.to_dict()``) when already computed; else
             computed here over the bench's currents where the calibrated law saturates.
+        speed: what the fit made of the measured speed (``drivecal.data.SpeedChoice.to_dict()``; ``drivecal
+            fit`` records it): a speed too coarse for the exact input it was used as is named by the verdict.
     """
     segments = segment_traces(calibration, bench, experiment)
     if noise_sigma is not None:
@@ -115,11 +118,12 @@ def build_result(
         input_sha256 = file_sha256(input_path) if input_path is not None else bench_sha256(bench)
     # The verdict reads the fit and its residuals; the document is assembled (keys and order) in one place.
     judged = verdict({**fit, "segments": segments, "residuals": residuals,
-                      "effects": None if effects is NOT_RECORDED else effects})
+                      "effects": None if effects is NOT_RECORDED else effects,
+                      "speed": None if speed is NOT_RECORDED else speed})
     return result_document(fit, segments=segments, residuals=residuals, verdict=judged,
                            plan=plan_to_dict(plan) if plan is not None else None, motor_file=motor_file,
                            input_sha256=input_sha256, input_path=input_path, measured_speed=measured_speed,
-                           saturation=saturation, effects=effects,
+                           saturation=saturation, effects=effects, speed=speed,
                            flux_maps=_maps_section(calibration, bench, flux_maps),
                            spec=NOT_RECORDED if not tolerance else judge_spec(
                                calibration.names, calibration.estimate, calibration.ci95, calibration.identifiable,

@@ -13,8 +13,8 @@ identifiability, fixed, ...) plus the sections :func:`result_document` adds:
 * ``plan`` (or null), ``motor_file`` (path of the prior's TOML, or null);
 * ``input``: ``{sha256, what, path}``: the hash of the input file's bytes, or
   for the synthetic bench of its bench-file CSV bytes;
-* ``measured_speed``, ``saturation`` and ``drivecal_version`` when the fit
-  came from a bench file (``drivecal fit``);
+* ``measured_speed``, ``speed``, ``saturation`` and ``drivecal_version`` when
+  the fit came from a bench file (``drivecal fit``);
 * ``flux_maps`` where the calibrated law saturates: ``psi_d``, ``psi_q``, ``L_dd``,
   ``L_dq``, ``L_qq`` on a current grid with their 95 % bands (``drivecal.maps``);
 * ``versions``: drivecal, jax, jaxonomy, jaxterity, optimistix, numpy,
@@ -96,7 +96,7 @@ def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], resi
                     verdict: dict[str, Any], plan: dict[str, Any] | None, motor_file: str | os.PathLike | None,
                     input_sha256: str, input_path: str | os.PathLike | None, measured_speed: Any = NOT_RECORDED,
                     saturation: Any = NOT_RECORDED, effects: Any = NOT_RECORDED, spec: Any = NOT_RECORDED,
-                    flux_maps: Any = NOT_RECORDED) -> dict[str, Any]:
+                    flux_maps: Any = NOT_RECORDED, speed: Any = NOT_RECORDED) -> dict[str, Any]:
     """One fit's full result JSON from its parts (each already JSON-ready).
 
     Args:
@@ -116,12 +116,11 @@ def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], resi
             only when the motor file has a ``[tolerance]`` table.
         flux_maps: the flux and incremental-inductance maps with their bands (``drivecal.maps.FluxMaps.to_dict()``),
             recorded where the calibrated law saturates.
+        speed: what the fit made of the measured speed and why (``drivecal.data.SpeedChoice.to_dict()``: mode,
+            requested, flagged, input_error_ratio, resolution, reason; bench files only).
     """
     doc = dict(fit)
-    doc["segments"] = segments
-    doc["residuals"] = residuals
-    doc["verdict"] = verdict
-    doc["plan"] = plan
+    doc.update(segments=segments, residuals=residuals, verdict=verdict, plan=plan)
     doc["motor_file"] = None if motor_file is None else str(motor_file)
     doc["input"] = {
         "sha256": input_sha256,
@@ -132,6 +131,8 @@ def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], resi
     if measured_speed is not NOT_RECORDED:
         doc["measured_speed"] = bool(measured_speed)
         doc["drivecal_version"] = __version__
+    if speed is not NOT_RECORDED:
+        doc["speed"] = speed
     if saturation is not NOT_RECORDED:
         doc["saturation"] = saturation
     if effects is not NOT_RECORDED:
@@ -440,7 +441,7 @@ def _validate_sections(c: _Check, d: dict, prefix: str) -> None:
         c.obj(e, f"{prefix}residuals.unmodelled_effects[{i}]")
     c.obj(d.get("plan"), f"{prefix}plan", null=True)
     c.string(d.get("motor_file"), f"{prefix}motor_file", null=True)
-    for k in ("input", "versions", "saturation", "flux_maps"):
+    for k in ("input", "versions", "saturation", "flux_maps", "speed"):
         c.obj(d.get(k), f"{prefix}{k}", null=True)
     chosen = c.obj(d.get("effects"), f"{prefix}effects", null=True) or {}
     c.string(chosen.get("mode", "auto"), f"{prefix}effects.mode")
