@@ -108,6 +108,7 @@ def test_verdict_record():
     v = Verdict("partial", "partially calibrated: Ld not identifiable by this plan", ["Ld held at the prior"])
     assert v.status is Status.PARTIAL and v.details == ("Ld held at the prior",) and v.exit_code == 3
     assert Verdict.from_dict(v.to_dict()) == v
+    assert repr(v) == "Verdict(partial: 'partially calibrated: Ld not identifiable by this plan'; 1 detail)"
     assert str(v) == ("[[Verdict]] partially calibrated: Ld not identifiable by this plan (status: partial)\n"
                       "    Ld held at the prior")
 

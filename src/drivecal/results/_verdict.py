@@ -66,3 +66,8 @@ class Verdict:
 
     def __str__(self) -> str:
         return "\n".join(self.lines())
+
+    def __repr__(self) -> str:
+        """``Verdict(partial: 'partially calibrated: ...'; 1 detail)``."""
+        n = len(self.details)
+        return f"Verdict({self.status.key}: {self.headline!r}; {n} detail{'' if n == 1 else 's'})"
