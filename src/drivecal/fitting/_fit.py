@@ -170,7 +170,9 @@ def fit(
     """Calibrate a motor from bench data.
 
     Identifiability is judged first at ``prior``; parameters the bench run
-    cannot identify are held at their prior and reported as such.
+    cannot identify are held at their prior and reported as such. The fit is
+    not judged here: the package's ``drivecal.fit`` (``drivecal.diagnose.fit``)
+    is this fit with its verdict and residual diagnostics attached.
 
     Args:
         bench: the recorded run.
