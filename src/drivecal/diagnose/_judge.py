@@ -15,8 +15,7 @@ import numpy as np
 
 from ..data import BenchData, MotorFile
 from ..errors import DrivecalError
-from ..fitting import FitOptions
-from ..fitting import fit as _fit_only
+from ..fitting import FitOptions, fit_currents, fit_setup
 from ..model import Experiment, model_experiment, predicted_currents
 from ..physics import MotorParams
 from ..results import Calibration, Verdict, json_ready, segment_residuals
@@ -107,7 +106,8 @@ def fit_diagnostics(
 
 
 def judge_fit(calibration: Calibration, bench: BenchData, *, experiment: Experiment | None = None,
-              noise_sigma: float | None = None, noise_source: str = "stated") -> Calibration:
+              noise_sigma: float | None = None, noise_source: str = "stated",
+              speed: dict[str, Any] | None = None) -> Calibration:
     """``calibration`` with its verdict and residual diagnostics attached (:func:`fit_diagnostics`).
 
     The same verdict as the result JSON that ``drivecal.build_result`` (and ``drivecal fit``) writes
@@ -115,7 +115,7 @@ def judge_fit(calibration: Calibration, bench: BenchData, *, experiment: Experim
     Arguments as :func:`fit_diagnostics`.
     """
     _, residuals, judged = fit_diagnostics(calibration, bench, experiment=experiment, noise_sigma=noise_sigma,
-                                           noise_source=noise_source)
+                                           noise_source=noise_source, speed=speed)
     return dataclasses.replace(calibration, verdict=Verdict.from_dict(judged), diagnostics=json_ready(residuals))
 
 
@@ -126,7 +126,7 @@ def fit(
     initial: MotorParams | np.ndarray | None = None,
     names: tuple[str, ...] | None = None,
     options: FitOptions = FitOptions(),
-    measured_speed: bool = True,
+    measured_speed: bool | None = None,
     delay_samples: float | None = None,
     speed: str | None = None,
     noise: float | None = None,
@@ -147,11 +147,12 @@ def fit(
                                   and math.isfinite(noise) and noise > 0):
         raise DrivecalError(f"noise is {noise!r}; give the current sensor's noise as a positive number of "
                             "amperes, or leave it out to judge against the noise estimated from the samples.")
-    cal = _fit_only(bench, prior, initial=initial, names=names, options=options, measured_speed=measured_speed,
-                    delay_samples=delay_samples, speed=speed)
+    experiment, motor, fitted, choice = fit_setup(bench, prior, names=names, measured_speed=measured_speed,
+                                                  delay_samples=delay_samples, speed=speed)
+    cal = fit_currents(experiment, bench.currents, motor, initial=initial, names=fitted, options=options,
+                       source=bench.source, delay_samples=float(motor.delay))
     source = "the noise argument"
     if noise is None and isinstance(prior, MotorFile) and prior.current_noise is not None:
         noise, source = prior.current_noise, "the motor file's current_noise"
-    # The experiment drivecal.fitting.fit fitted (its delay is the Calibration's).
-    experiment = bench.experiment(measured_speed=measured_speed, delay_samples=cal.delay_samples, speed=speed)
-    return judge_fit(cal, bench, experiment=experiment, noise_sigma=noise, noise_source=source)
+    return judge_fit(cal, bench, experiment=experiment, noise_sigma=noise, noise_source=source,
+                     speed=choice.to_dict())

@@ -23,7 +23,7 @@ import jax
 import numpy as np
 
 from .._stats import t_ppf
-from ..data import BenchData, MotorFile, choose_speed
+from ..data import BenchData, MotorFile, SpeedChoice, choose_speed
 from ..errors import DrivecalError
 from ..identify import Identifiability, assess_identifiability
 from ..model import Experiment, model_experiment, with_experiment_delay
@@ -193,6 +193,27 @@ def fit(
             (a second measured output, weighed by the sensors' noise: the motor file's, else estimated
             from the data) or "ignore" (see ``BenchData.experiment``).
     """
+    experiment, prior, names, _ = fit_setup(bench, prior, names=names, measured_speed=measured_speed,
+                                            delay_samples=delay_samples, speed=speed)
+    return fit_currents(experiment, bench.currents, prior, initial=initial, names=names, options=options,
+                        source=bench.source, delay_samples=float(prior.delay))
+
+
+def fit_setup(
+    bench: BenchData,
+    prior: MotorParams | MotorFile,
+    *,
+    names: tuple[str, ...] | None = None,
+    measured_speed: bool | None = None,
+    delay_samples: float | None = None,
+    speed: str | None = None,
+) -> tuple[Experiment, MotorParams, tuple[str, ...], SpeedChoice]:
+    """What :func:`fit` fits: ``(experiment, prior, names, speed_choice)`` (arguments as :func:`fit`).
+
+    The motor file's estimate list, delay and sensor noises applied; the prior's ``delay`` the nominal
+    delay (samples); the measured speed's role chosen (``drivecal.data.choose_speed``; a warning says
+    why when it is not the one asked for).
+    """
     noises, mechanics_given = (None, None), True
     if isinstance(prior, MotorFile):
         names = names if names is not None else prior.estimate
@@ -203,21 +224,12 @@ def fit(
     names = ESTIMATED if names is None else tuple(names)
     if delay_samples is not None:
         prior = prior.replace(delay=float(delay_samples))
-    delay_samples = float(prior.delay)
     if speed is None and measured_speed is not None:
         speed = "input" if measured_speed else "ignore"
     choice = choose_speed(bench, prior, names, speed=speed, current_noise=noises[0], speed_noise=noises[1],
                           mechanics_given=mechanics_given)
     if choice.reason:
-        warnings.warn(f"{bench.source}: {choice.reason}", stacklevel=2)
-    return fit_currents(
-        bench.experiment(delay_samples=delay_samples, speed=choice.mode, current_noise=noises[0],
-                         speed_noise=noises[1]),
-        bench.currents,
-        prior,
-        initial=initial,
-        names=names,
-        options=options,
-        source=bench.source,
-        delay_samples=delay_samples,
-    )
+        warnings.warn(f"{bench.source}: {choice.reason}", stacklevel=3)
+    experiment = bench.experiment(delay_samples=float(prior.delay), speed=choice.mode, current_noise=noises[0],
+                                  speed_noise=noises[1])
+    return experiment, prior, names, choice
