@@ -16,6 +16,8 @@ checks that ``examples/`` is unchanged afterwards.
   ``; echo $?`` or a following ``$ echo $?`` shows; else 2 when the paste ends in a ``drivecal: error:``
   line; else the one a pasted ``verdict:`` (and ``specification:``) line stands for (``drivecal fit``
   exits with it); else 0.
+- A line ``$ sed ...`` (or ``cp``, ``cat``, another of ``SHELL_HELPERS``) prepares a file for the next
+  command: it runs with ``/bin/sh`` in the same folder, redirections and all, and is checked the same way.
 
 An example is skipped only where the page says so: an HTML comment ``<!-- docs-test: skip REASON -->``
 right above the block (invisible on the rendered page), used for a command that takes more than ~20 s in
@@ -34,6 +36,7 @@ import os
 import re
 import shlex
 import shutil
+import subprocess
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -64,6 +67,11 @@ class Command:
     argv: list[str]
     expected: list[str] = field(default_factory=list)
     status: int | None = None  # from `; echo $?` or a following `$ echo $?`
+    shell: str | None = None  # a helper line (`sed`, `cp`, ...) run by the shell, not drivecal
+
+
+#: The shell's own commands a page may use to prepare a file for drivecal (run with /bin/sh in the page's folder).
+SHELL_HELPERS = {"sed", "cp", "mv", "cat", "head", "tail", "mkdir", "rm", "printf", "echo"}
 
 
 def blocks(page: Path) -> list[Block]:
@@ -114,11 +122,15 @@ def commands(block: Block) -> list[Command]:
             i += 1
             continue
         echo = "; echo $?" in cmd
-        cmd = cmd.replace("; echo $?", "").replace("> /dev/null", "")
-        argv = shlex.split(cmd, comments=True)
-        if not argv or argv[0] != "drivecal":
-            raise AssertionError(f"{block.page.name}:{block.line + start + 1}: only drivecal commands run: {line}")
-        command = Command(block.line + start + 1, argv[1:])
+        cmd = cmd.replace("; echo $?", "")
+        argv = shlex.split(cmd.replace("> /dev/null", ""), comments=True)
+        if argv and argv[0] in SHELL_HELPERS:
+            command = Command(block.line + start + 1, argv, shell=cmd)
+        elif not argv or argv[0] != "drivecal":
+            raise AssertionError(f"{block.page.name}:{block.line + start + 1}: only drivecal commands and "
+                                 f"{sorted(SHELL_HELPERS)} run: {line}")
+        else:
+            command = Command(block.line + start + 1, argv[1:])
         if echo:
             command.status = int(lines[i].strip())
             i += 1
@@ -154,20 +166,24 @@ def _normal(text: str) -> str:
 def run_command(command: Command, where: str) -> None:
     from drivecal.cli import main
 
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            status = main(command.argv)
-        except SystemExit as exc:
-            status = exc.code if isinstance(exc.code, int) else 1
-    printed = out.getvalue() + "\n" + err.getvalue()
+    if command.shell is not None:
+        done = subprocess.run(["/bin/sh", "-c", command.shell], capture_output=True, text=True)
+        status, printed = done.returncode, done.stdout + "\n" + done.stderr
+    else:
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                status = main(command.argv)
+            except SystemExit as exc:
+                status = exc.code if isinstance(exc.code, int) else 1
+        printed = out.getvalue() + "\n" + err.getvalue()
     expected = [line for line in command.expected if line.strip()]
     want = expected_status(command)
     assert status == want, f"{where}: exit status {status}, the page says {want}\n{printed}"
     have = _normal(printed)  # one line: the terminal's wrapping (its width) does not matter
     missing = [line for line in expected if line.strip() != "..." and _normal(line) not in have]
     assert not missing, (f"{where}: {len(missing)} line(s) of the pasted output are not in what "
-                         f"`drivecal {shlex.join(command.argv)}` printed, first: {missing[0]!r}\n"
+                         f"`{command.shell or 'drivecal ' + shlex.join(command.argv)}` printed, first: {missing[0]!r}\n"
                          f"--- printed:\n{printed}")
 
 
