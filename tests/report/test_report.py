@@ -111,7 +111,8 @@ def test_report_of_saved_json_reproduces_the_html(demo_run, tmp_path, capsys):
     again = tmp_path / "again.html"
     assert main(["report", str(out / "report.json"), "--html", str(again)]) == 0
     text = capsys.readouterr().out
-    assert "== locked_q_step: partially calibrated: Ld, lambda_m not identifiable by this plan" in text
+    assert ("== locked_q_step\n[[Verdict]] partially calibrated: Ld, lambda_m not identifiable by this plan "
+            "(status: partial)\n") in text
     assert "[[Fit Statistics]]" in text
     first = TIME_STAMP.sub("", (out / "report.html").read_text())
     second = TIME_STAMP.sub("", again.read_text())
