@@ -179,20 +179,6 @@ def test_optimised_default_and_multisine_plans_keep_the_margins_of_plan(optimal)
                 assert spec["amplitude"] > 0.02 * (spec["amplitude"] + abs(spec["offset"])) and "multisine" in name
 
 
-def test_a_multisine_the_optimum_empties_is_written_and_named_as_the_step_it_is():
-    from drivecal.design._design_space import _build_param
-
-    plan, specs = load_plan_waveforms(EXAMPLES / "multisine_plan.toml")
-    par = _build_param(plan, specs, 0.1)
-    ax = par.axes[0][0]  # the d-multisine: u = (peak, phi, f_min, f_max); phi = pi/2 puts the whole peak in the offset
-    u = np.array(par.u0)
-    u[ax.start + 1] = math.pi / 2
-    after, written = par.to_plan(u)
-    assert after.segments[0].name == "locked d-step" and after.segments[1].name == "locked q-multisine"
-    assert isinstance(written[("locked d-step", "v_d")], float) and np.ptp(after.segments[0].v_d) == 0
-    assert written[("locked q-multisine", "v_q")]["kind"] == "multisine"
-
-
 @pytest.mark.parametrize("argv, message", [
     (["--optimize"], "--optimize needs --out"),
     (["--budget", "0.05"], "--budget and --out go with --optimize"),

@@ -27,16 +27,13 @@ segments — locked d-step (R, Ld), locked q-step (Lq), free spin-up (lambda_m) 
   near a locked step's: a voltage step would surge to ``v/R`` and, held to the current limit, spin a
   large motor to a few per cent of its rated speed, where lambda_m's back-EMF hardly shows.
 
-The total sample count is rounded up to a power of two, lengthening every
-segment alike, so that plans of different
-motors share one compiled fit; a binding time budget shortens the segments
-instead, down to :data:`MIN_LOCKED_TIME_CONSTANTS` and
-:data:`MIN_SPIN_TIME_CONSTANTS`.
+The total sample count is rounded up to a power of two, lengthening every segment alike, so that plans of
+different motors share one compiled fit; a binding time budget shortens the segments instead, down to
+:data:`MIN_LOCKED_TIME_CONSTANTS` and :data:`MIN_SPIN_TIME_CONSTANTS`.
 
-When mechanical parameters (J, B, T_coulomb, T_load) are requested, the
-spin-up is a voltage step that runs on to a steady speed and the mechanical test continues it: a
-low-speed run (and a reversed one for T_load) and a short-circuit braking,
-sized in ``_mechanical``.
+When mechanical parameters (J, B, T_coulomb, T_load) are requested, the spin-up is a voltage step that runs
+on to a steady speed and the mechanical test continues it: a low-speed run (and a reversed one for T_load)
+and a short-circuit braking, sized in ``_mechanical``.
 
 When saturation coefficients (sat_d, sat_q, sat_dq) are requested, the locked steps become
 those ``_saturation_plan`` lays out: steps at three current levels per saturating axis, up to 0.8 of

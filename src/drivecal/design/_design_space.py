@@ -326,7 +326,7 @@ def free_durations(plan: Plan, specs: dict) -> np.ndarray:
     return np.array([not any(_axis_kind(specs[(s.name, a)]) == "samples" for a in _AXES) for s in plan.segments])
 
 
-def _build_param(plan: Plan, specs: dict, budget: float, least: np.ndarray | None = None,
+def build_param(plan: Plan, specs: dict, budget: float, least: np.ndarray | None = None,
                  voltage_fraction: float = 1.0) -> _Param:
     """The design space of ``plan``: durations at least ``least`` (s, per segment; default none) and at least
     :data:`MIN_DURATION_FRACTION` of an equal share of the budget, voltages inside ``voltage_fraction`` of

@@ -52,7 +52,7 @@ import optimistix as optx
 from ._assess import DesignReport, assess_design, predict_segments
 from ._bench_limits import (CURRENT_MARGIN, SPEED_FRACTION, TORQUE_MARGIN, VOLTAGE_FRACTION, margin_problems,
                             min_durations, speed_limit)
-from ._design_space import _AXES, Spec, _Param, _build_param, free_durations, infer_waveforms
+from ._design_space import _AXES, Spec, _Param, build_param, free_durations, infer_waveforms
 from ..errors import DrivecalError, PlanError
 from ..model import Experiment, predict_currents, simulate_states
 from ..identify import assess_identifiability, sensitivity_jacobian
@@ -384,7 +384,7 @@ def optimize_plan(
     cov_before = predicted_covariance(plan, motor, noise_sigma=noise_sigma, names=names)
     logdet_before = _log_det(cov_before)
 
-    par = _build_param(plan, specs, budget, least, VOLTAGE_FRACTION)
+    par = build_param(plan, specs, budget, least, VOLTAGE_FRACTION)
     objective, scales = _objective_fn(par, motor, names)
     solver = optx.BFGS(rtol=1e-3, atol=1e-3)
     sol = optx.minimise(objective, solver, jnp.asarray(par.u0), max_steps=max_steps, throw=False)
