@@ -198,6 +198,11 @@ def test_ten_corpus_motors_get_plans_an_engineer_would_accept(ten_plans):
         assert ratio >= design.DEAD_TIME_MARGIN or (limits.v_dead_fitted and "v_dead" in report.identifiability.fit_names
                                                     and any("v_dead must be fitted" in n for n in report.notes)), name
         assert not design.margin_problems(report, report.motor), (name, design.margin_problems(report, report.motor))
+        torque = max(p.peak_torque for s, p in zip(plan.segments, report.segments) if s.locked)
+        print(f"{name}: {plan.sample_rate / 1e3:g} kHz, {plan.num_samples} samples, dead-time voltage "
+              f"{limits.v_dead:.3g} V, smallest locked step {ratio:.3g} x it"
+              f"{' (v_dead fitted)' if limits.v_dead_fitted else ''}, clamp torque {torque:.3g} of "
+              f"{_clamp_limit(entry):.3g} N*m")
         w_limit = min(entry.w_rated, plan.voltage_limit / (float(prior.pole_pairs) * float(prior.lambda_m)))
         assert limits.speed_limit == pytest.approx(w_limit)
         for seg, pred in zip(plan.segments, report.segments):
@@ -235,6 +240,8 @@ def test_ten_corpus_motors_simulate_and_fit_within_4_se(ten_plans):
         bench = clean.add_noise(plan.current_noise, int(name[1:]))
         cal = dc.fit(bench, start, names=report.identifiability.names)
         z = (np.asarray(cal.estimate) - np.asarray([float(getattr(truth, n)) for n in cal.names])) / np.asarray(cal.se)
+        print(f"{name}: converged {bool(cal.converged)}, largest |z| {np.max(np.abs(z)):.2f} "
+              f"({cal.names[int(np.argmax(np.abs(z)))]})")
         if not (bool(cal.converged) and np.all(np.abs(z) <= corpus.PASS_SE)):
             failed.append((name, dict(zip(cal.names, np.round(z, 2)))))
     assert not failed, failed
