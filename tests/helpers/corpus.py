@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 from typing import Callable, Iterable
 
+import jax
 import numpy as np
 
 from drivecal.design import NOISE_FRACTION, auto_design
@@ -236,6 +237,9 @@ def validate(motors: Iterable[CorpusMotor], *, seed: int = 0,
     """:func:`validate_motor` for each motor, seeded by ``(seed, row)``; ``progress`` sees each result."""
     results = []
     for entry in motors:
+        # Every motor's plan has its own shape, hence its own compiled programs: dropped after each motor, or
+        # fifty motors' machine code outgrows the memory (LLVM: "Unable to allocate section memory").
+        jax.clear_caches()
         row = int(entry.name.lstrip("m")) if entry.name.lstrip("m").isdigit() else len(results)
         result = validate_motor(entry, seed=(seed, row))
         results.append(result)

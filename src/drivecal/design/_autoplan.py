@@ -25,7 +25,8 @@ segments — locked d-step (R, Ld), locked q-step (Lq), free spin-up (lambda_m) 
 * a **spin-up ramp** on v_q to the back-EMF of :data:`SPIN_SPEED_FRACTION` of the speed limit
   (``max_speed``, and the no-load speed the voltage allows), as fast as keeps its acceleration current
   near a locked step's: a voltage step would surge to ``v/R`` and, held to the current limit, spin a
-  large motor to a few per cent of its rated speed, where lambda_m's back-EMF hardly shows.
+  large motor to a few per cent of its rated speed, where lambda_m's back-EMF hardly shows; a rotor too heavy
+  to get there within :data:`MAX_RAMP_SAMPLES` spins to the speed it reaches in that time.
 
 The total sample count is rounded up to a power of two, lengthening every segment alike, so that plans of
 different motors share one compiled fit; a binding time budget shortens the segments instead, down to
@@ -62,11 +63,12 @@ import math
 from ._assess import MAX_ELECTRICAL_STEP as _DESIGN_MAX_STEP
 from ._assess import DesignReport, assess_design, predict_segments
 from ._bench_limits import (CURRENT_MARGIN, DEAD_TIME_MARGIN, DEFAULT_DEAD_TIME, LOCKED_TIME_CONSTANTS,
-                            MIN_LOCKED_TIME_CONSTANTS, MIN_SAMPLES_PER_TIME_CONSTANT, MIN_SEGMENT_SAMPLES,
-                            MIN_SPIN_TIME_CONSTANTS, PLAN_MAX_ELECTRICAL_STEP, SAMPLE_RATES, SAMPLES_PER_TIME_CONSTANT,
-                            SPEED_FRACTION, SPIN_SPEED_FRACTION, SPIN_TIME_CONSTANTS, STEP_CURRENT_FRACTION,
-                            TORQUE_MARGIN, VOLTAGE_FRACTION, BenchLimits, MotorTimes, choose_sample_rate, clamp_current,
-                            dead_time_drop, expected_dead_voltage, expected_dead_width)
+                            MAX_RAMP_SAMPLES, MIN_LOCKED_TIME_CONSTANTS, MIN_SAMPLES_PER_TIME_CONSTANT,
+                            MIN_SEGMENT_SAMPLES, MIN_SPIN_TIME_CONSTANTS, PLAN_MAX_ELECTRICAL_STEP, SAMPLE_RATES,
+                            SAMPLES_PER_TIME_CONSTANT, SPEED_FRACTION, SPIN_SPEED_FRACTION, SPIN_TIME_CONSTANTS,
+                            STEP_CURRENT_FRACTION, TORQUE_MARGIN, VOLTAGE_FRACTION, BenchLimits, MotorTimes,
+                            choose_sample_rate, clamp_current, dead_time_drop, expected_dead_voltage,
+                            expected_dead_width, ramp_speed)
 from ._mechanical import SETTLE_SPIN_TIMES, friction_samples, mechanical_requested, mechanical_segments, run_voltages
 from ._saturation_plan import (SATURATION_TOP_FRACTION, LockedStep, margin_note, saturation_requested,
                                saturation_steps, weakened, with_saturation_steps)
@@ -274,18 +276,17 @@ def auto_design(
         w_spin = SPIN_SPEED_FRACTION * w_limit
         fs, fs_source = choose_sample_rate(tau, RAMP_OVERSHOOT * p * w_spin, sample_rate, ripple)
         w_spin = min(w_spin, PLAN_MAX_ELECTRICAL_STEP * fs / (RAMP_OVERSHOOT * p))  # a slow bench: spin slower
+        # Accelerate at half the steady current a locked step draws (refined below on the prediction), slower
+        # where the ramp would outgrow MAX_RAMP_SAMPLES.
+        w_spin, rise, ramp_note = ramp_speed(motor, w_spin, 0.5 * i_step, fs)
         v_spin = min(p * lam * w_spin, v_max)
-        # Accelerate at half the steady current a locked step draws (refined below on the prediction). With
-        # v_d = 0 the rotation drives i_d ~ w_e * Lq/R * i_q: the ramp is as much longer as that grows.
-        coupling = math.hypot(1.0, p * w_spin * times.tau_q)
-        rise = max(float(motor.J) * w_spin * coupling / (1.5 * p * lam * 0.5 * i_step), 2.0 * times.spin_time,
-                   2.0 * times.tau_q)
+        rise = max(rise, 2.0 * times.spin_time, 2.0 * times.tau_q)
     else:
         # The spin-up starts like a locked q-step (current <= v/R) and settles at w = v/(p lambda_m),
         # after an overshoot set by the electromechanical damping.
         v_spin = min(i_step * r, v_max, w_cap * p * lam / times.overshoot) if lam else 0.0
         fs, fs_source = choose_sample_rate(tau, times.overshoot * v_spin / lam if lam else 0.0, sample_rate, ripple)
-        rise = 0.0
+        rise, ramp_note = 0.0, ()
     v_dead = expected_dead_voltage(motor, v_dc, dead_time, fs)
     i_dead = expected_dead_width(motor, v_dc, fs)
     need = DEAD_TIME_MARGIN * v_dead
@@ -382,7 +383,7 @@ def auto_design(
             report = final
         limits = BenchLimits(fs_source, float(dead_time), v_dead, i_dead, fit_dead, w_limit, max_torque,
                              report.identifiability.names)
-        notes += limits.dead_time_notes(report.plan)
+        notes += limits.dead_time_notes(report.plan) + ramp_note
         wave = ({(SPIN_UP, "v_q"): {"kind": "ramp", "level": levels.v_spin, "rise": levels.rise}}
                 if levels.v_spin and levels.rise else {})
         return dataclasses.replace(report, notes=notes, limits=limits, waveforms=wave)
@@ -408,7 +409,7 @@ def _fit_ramp(report: DesignReport, levels: _Levels, judge, current_limit: float
         peak = max(s.peak_current for s in report.segments if not s.locked)
         if 0.8 * target <= peak <= target:
             break
-        rise = max(levels.rise * peak / (0.9 * target), least)
+        rise = max(min(levels.rise * peak / (0.9 * target), MAX_RAMP_SAMPLES / levels.sample_rate), least)
         if abs(rise - levels.rise) <= 0.01 * levels.rise:
             break
         candidate_levels = dataclasses.replace(levels, rise=rise)

@@ -75,6 +75,9 @@ DEAD_TIME_MARGIN = 10.0
 #: The spin-up's steady speed as a share of the speed limit (max_speed, or the no-load speed): high enough
 #: for lambda_m's back-EMF, under SPEED_FRACTION with the ramp's overshoot.
 SPIN_SPEED_FRACTION = 0.6
+#: Longest spin-up ramp in samples: a bench log of a few seconds, and a fit (and its Jacobian) that stays
+#: small. A rotor too heavy to reach its speed within it at the current a locked step draws spins slower.
+MAX_RAMP_SAMPLES = 2**15
 
 
 @dataclasses.dataclass(frozen=True)
@@ -177,6 +180,30 @@ def dead_time_drop(v_dead: float, i_dead: float, i_d: float, i_q: float) -> tupl
     ``(i_d, i_q)`` (A): what a step must add to drive that current."""
     e_d, e_q = dead_time_error(i_d, i_q, 0.0, v_dead, max(float(i_dead), 1e-9))
     return -float(e_d), -float(e_q)
+
+
+def ramp_speed(motor: MotorParams, w_spin: float, i_accel: float,
+               sample_rate: float) -> tuple[float, float, tuple[str, ...]]:
+    """The spin-up ramp's speed (rad/s, mechanical), its rise (s) and the note on it: ``w_spin`` unless
+    accelerating the rotor to it at the torque of ``i_accel`` (A) takes longer than :data:`MAX_RAMP_SAMPLES`
+    (a third of it left for the refinement on the prediction), else the speed it reaches in that time.
+
+    With ``v_d = 0`` the rotation drives ``i_d ~ w_e * Lq/R * i_q``: the q current that accelerates the
+    rotor is that much smaller, and the ramp ``hypot(1, w_e * tau_q)`` times longer.
+    """
+    p, lam = float(motor.pole_pairs), float(motor.lambda_m)
+    a = float(motor.J) / (1.5 * p * lam * i_accel)  # s per rad/s: the rise without the coupling
+    b = p * float(motor.Lq / motor.R)  # s: the coupling's growth with the mechanical speed
+    longest = MAX_RAMP_SAMPLES / sample_rate / 1.5
+    if a * w_spin * math.hypot(1.0, b * w_spin) <= longest:
+        return w_spin, a * w_spin * math.hypot(1.0, b * w_spin), ()
+    k = (longest / a) ** 2  # a w sqrt(1 + b^2 w^2) = longest, for w
+    w = math.sqrt(k) if b == 0 else math.sqrt((math.sqrt(1.0 + 4.0 * b * b * k) - 1.0) / (2.0 * b * b))
+    note = (f"the spin-up ramps to {w:.3g} rad/s, not {w_spin:.3g} rad/s: at half a locked step's current the "
+            f"rotor (J = {float(motor.J):.3g} kg*m^2) would need {a * w_spin * math.hypot(1.0, b * w_spin):.3g} s to "
+            f"get there, over the {MAX_RAMP_SAMPLES} samples a spin-up may last; lambda_m's interval says whether "
+            "its back-EMF suffices (raise the current limit for a faster ramp).")
+    return w, longest, (note,)
 
 
 def clamp_current(motor: MotorParams, max_torque: float | None) -> float:
