@@ -8,9 +8,9 @@ run-dependent part is the time stamp in ``<time id="generated">``; the
 figures are rendered deterministically (fixed size and dpi, no PNG metadata,
 fixed ``svg.hashsalt``).
 
-Layout per fit: verdict first, then the summary table, fit statistics, the
-figures, the plan, the prior and fixed parameters, and provenance (input
-hash, software versions).
+Layout per fit (:func:`fit_section_html`), plain words first: the verdict, the result in sentences, the
+estimates against the prior, the main figures, the test as run, the plan, every check done or skipped
+(``report._sections``); the statistics behind a disclosure; provenance (input hash, software versions).
 """
 
 from __future__ import annotations
