@@ -230,7 +230,7 @@ def fit_section_html(fit: Mapping[str, Any], label: str, anchor: str,
 
 
 def _label(key: str, fit: Mapping[str, Any], multi: bool) -> str:
-    """A fit section's heading: the design's name in a document of several, else what was calibrated."""
+    """A fit's name in its figures' titles: the design's in a document of several, else what was calibrated."""
     return key if multi else (report_title(fit) or key)
 
 
@@ -266,9 +266,8 @@ def render_html(result: Mapping[str, Any], *, generated: str | None = None, rend
     sections = "".join(fit_section_html(f, k if multi else "Result", f"fit-{k}",
                                         [(cap, name, next(pngs)) for cap, (name, _) in jobs[k]])
                        for k, f in fits.items())
-    title = "drivecal calibration report"
-    if not multi and report_title(next(iter(fits.values()))):
-        title = f"Calibration of {report_title(next(iter(fits.values())))}"
+    what = "" if multi else report_title(next(iter(fits.values())))
+    title = f"Calibration of {what}" if what else "drivecal calibration report"
     extra = ""
     if "noise_sigma" in result and "seed" in result:
         extra = (f"<p>Synthetic bench on the Jaxonomy engine: sensor noise {result['noise_sigma']:g} A, "

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..physics import UNITS
 from ..results import escape as _e
-from .._units import format_quantity
+from .._units import format_quantity, format_value
 
 #: The rows a check's outcome may take, with the CSS class of its cell.
 DONE, SKIPPED, FAILED = "done", "skipped", "failed"
@@ -70,10 +70,10 @@ def _sentence(name: str, p: Mapping[str, Any]) -> str:
         return text + (": none, as assumed (zero is inside the interval)." if inside else
                        ": present (zero is outside the interval).")
     change, change_half = 100.0 * (est - prior) / abs(prior), 100.0 * half / abs(prior)
-    digits = max(0, min(6, 1 - int(np.floor(np.log10(change_half))))) if change_half > 0 else 2
     where = "above" if change > 0 else "below"
     inside = low <= prior <= high
-    return (text + f": {abs(change):.{digits}f} ± {change_half:.{digits}f} % {where} the prior "
+    return (text + f": {format_value(abs(change), 1.0, change_half)} ± {format_value(change_half, 1.0, change_half)}"
+            f" % {where} the prior "
             f"{quantity(prior, unit)}" + (" (inside the interval)." if inside else
                                           ": this unit differs from it by more than the interval."))
 

@@ -37,7 +37,7 @@ def summary_html(fit: Mapping[str, Any]) -> str:
                   if ok and est is not None and isinstance(prior, (int, float)) and prior else None)
         ident = "yes" if ok else f"NO: {p.get('reason', 'not identifiable')} (held at prior)"
         prior_cell = format_value(prior, cells.scale) if isinstance(prior, (int, float)) else "-"
-        change_cell = "-" if change is None else f"{change:+.{_decimals(rel)}f}"
+        change_cell = "-" if change is None else ("+" if change > 0 else "") + format_value(change, 1.0, rel)
         rows.append(
             f'<tr class="{"yes" if ok else "no"}"><td class="l">{escape(name)}</td><td class="l">{escape(cells.unit)}'
             f"</td><td>{prior_cell}</td><td>{cells.estimate}</td><td>{cells.se}</td><td>{cells.ci[0]}</td>"
@@ -50,9 +50,3 @@ def summary_html(fit: Mapping[str, Any]) -> str:
             "<th class='l'>identifiable</th></tr>")
     return f'<table class="summary">{head}{"".join(rows)}</table>'
 
-
-def _decimals(rel: float | None) -> int:
-    """Decimals of a percentage shown beside a relative half-width ``rel`` [%]: to its second significant digit."""
-    if rel is None or not math.isfinite(rel) or rel <= 0:
-        return 1
-    return max(0, min(6, 1 - math.floor(math.log10(rel))))
