@@ -19,10 +19,13 @@ checks that ``examples/`` is unchanged afterwards.
 - A line ``$ sed ...`` (or ``cp``, ``cat``, another of ``SHELL_HELPERS``) prepares a file for the next
   command: it runs with ``/bin/sh`` in the same folder, redirections and all, and is checked the same way.
 
-An example is skipped only where the page says so: an HTML comment ``<!-- docs-test: skip REASON -->``
-right above the block (invisible on the rendered page), used for a command that takes more than ~20 s in
-a test process (a saturating or effect-selecting fit, the demo, a batch) or needs a file the page does not
-make (a motor file shown only in part, a fleet of files). Commands under a ``sh`` fence are recipes and
+Markers, HTML comments right above a block (invisible on the rendered page):
+
+- ``<!-- docs-test: file NAME -->``: the block is a file the page shows (a motor file, a bench-file
+  excerpt); its text is written to ``NAME`` in the page's folder, for the examples after it.
+- ``<!-- docs-test: slow REASON -->``: an example that takes more than ~20 s (a saturating or
+  effect-selecting fit, the demo, a batch). It runs; its page becomes a ``slow`` test.
+- ``<!-- docs-test: skip REASON -->``: an example that is not run, with the reason. Commands under a ``sh`` fence are recipes and
 synopses, not runs: they are not executed.
 """
 
@@ -45,7 +48,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-SKIP = re.compile(r"<!--\s*docs-test:\s*skip\b\s*(.*?)\s*-->")
+MARKER = re.compile(r"<!--\s*docs-test:\s*(skip|slow|file)\b\s*(.*?)\s*-->")
 FENCE = re.compile(r"^(\s*)(`{3,})\s*([\w+-]*)")
 SHELL_FENCES = {"", "text", "console"}
 #: Print each example's wall and CPU time (to choose what to skip): DRIVECAL_DOCS_TIMES=1 pytest -s ...
@@ -59,6 +62,8 @@ class Block:
     lang: str
     text: str
     skip: str | None  # the reason given in the page, or None
+    slow: str | None = None  # run, in the page's slow test only: the reason (its time) given in the page
+    file: str | None = None  # not run: its text is written to this file of the page's folder
 
 
 @dataclass
@@ -91,9 +96,12 @@ def blocks(page: Path) -> list[Block]:
         k = i - 1
         while k >= 0 and not lines[k].strip():
             k -= 1
-        marker = SKIP.search(lines[k]) if k >= 0 else None
-        skip = (marker.group(1) or "no reason given") if marker else None
-        out.append(Block(page, i + 1, lang, "\n".join(body), skip))
+        marker = MARKER.search(lines[k]) if k >= 0 else None
+        kind, value = marker.groups() if marker else (None, None)
+        out.append(Block(page, i + 1, lang, "\n".join(body),
+                         skip=(value or "no reason given") if kind == "skip" else None,
+                         slow=(value or "no reason given") if kind == "slow" else None,
+                         file=value if kind == "file" else None))
         i = j + 1
     return out
 
@@ -223,6 +231,8 @@ def test_skip_markers_give_a_reason():
     for page in PAGES:
         for block in blocks(page):
             assert block.skip != "no reason given", f"{page.name}:{block.line}: say why the example is skipped"
+            assert block.slow != "no reason given", f"{page.name}:{block.line}: say how long the example takes"
+            assert block.file != "", f"{page.name}:{block.line}: name the file the block is written to"
 
 
 def _runnable(block: Block) -> bool:
@@ -231,9 +241,12 @@ def _runnable(block: Block) -> bool:
 
 #: The pages with examples (run or marked skipped); the others have nothing to run.
 EXAMPLE_PAGES = [page for page in PAGES if any(_runnable(block) for block in blocks(page))]
+#: A page with a slow example runs as a slow test (``-m "not slow"`` leaves it out): its examples share files.
+PAGE_PARAMS = [pytest.param(page, id=page.name, marks=[pytest.mark.slow] if any(b.slow for b in blocks(page)) else [])
+               for page in EXAMPLE_PAGES]
 
 
-@pytest.mark.parametrize("page", EXAMPLE_PAGES, ids=[p.name for p in EXAMPLE_PAGES])
+@pytest.mark.parametrize("page", PAGE_PARAMS)
 def test_examples_of_the_page_run(page, tmp_path, monkeypatch):
     examples = ROOT / "examples"
     before = _tree_digest(examples)
@@ -242,6 +255,12 @@ def test_examples_of_the_page_run(page, tmp_path, monkeypatch):
     ran, namespace = 0, {"__name__": "__docs__"}
     for block in blocks(page):
         where = f"{page.relative_to(ROOT)}:{block.line}"
+        if block.file:
+            target = tmp_path / block.file
+            assert target.resolve().is_relative_to(tmp_path.resolve()) and not target.exists(), f"{where}: {block.file}"
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_text(block.text + "\n", encoding="utf-8")
+            continue
         if not _runnable(block) or block.skip is not None:
             continue
         t0, c0 = time.perf_counter(), time.process_time()
