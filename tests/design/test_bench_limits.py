@@ -112,6 +112,21 @@ def test_the_spin_up_ramps_to_a_good_share_of_the_speed_limit_within_it(demo_des
         assert not design.margin_problems(report, report.motor)
 
 
+def test_a_rotor_too_heavy_for_the_longest_ramp_spins_slower_and_the_plan_says_so(demo_design):
+    """100 x the demo rotor's inertia: reaching 60 % of the speed limit at half a locked step's current would
+    take ~7 s (70 000 samples); the ramp keeps to MAX_RAMP_SAMPLES, spins slower, and lambda_m stays identified."""
+    heavy = dc.auto_design(dc.DEFAULT_MOTOR.replace(J=100 * float(dc.DEFAULT_MOTOR.J)), v_dc=48.0, current_limit=30.0)
+    assert heavy.ok and "lambda_m" in heavy.identifiability.fit_names
+    spec = heavy.waveforms[("free spin-up", "v_q")]
+    assert spec["kind"] == "ramp" and spec["rise"] * heavy.plan.sample_rate <= design.MAX_RAMP_SAMPLES
+    assert heavy.plan.num_samples <= 2 * design.MAX_RAMP_SAMPLES
+    spin = heavy.segments[-1]
+    assert spin.peak_speed < 0.5 * heavy.limits.speed_limit
+    assert any(n.startswith("the spin-up ramps to") for n in heavy.notes)
+    assert not any(n.startswith("the spin-up ramps to") for n in demo_design.notes)
+    assert spin.peak_current <= design.CURRENT_MARGIN * 30.0 and not design.margin_problems(heavy, heavy.motor)
+
+
 def test_cli_plan_shows_the_limits_per_segment_and_says_when_v_dead_must_be_fitted(tmp_path, capsys):
     motor = tmp_path / "servo.toml"
     motor.write_text('R = "0.2 ohm"\nLd = "2 mH"\nLq = "2 mH"\nlambda_m = "0.1 Wb"\npole_pairs = 4\n'

@@ -2,7 +2,8 @@
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
 from ._assess import DesignReport, MAX_ELECTRICAL_STEP, SegmentPrediction, assess_design, predict_segments
-from ._bench_limits import (DEAD_TIME_MARGIN, DEFAULT_DEAD_TIME, DEFAULT_SAMPLE_RATE, RIPPLE_FRACTION, SAMPLE_RATES,
+from ._bench_limits import (DEAD_TIME_MARGIN, DEFAULT_DEAD_TIME, DEFAULT_SAMPLE_RATE, MAX_RAMP_SAMPLES,
+                            RIPPLE_FRACTION, SAMPLE_RATES,
                             SPIN_SPEED_FRACTION, TORQUE_MARGIN, BenchLimits, choose_sample_rate, clamp_current,
                             dead_time_drop, expected_dead_voltage, expected_dead_width,
                             margin_problems, min_durations)
@@ -24,7 +25,7 @@ __all__ = ["assess_design", "auto_design", "auto_plan", "BenchLimits", "BUDGET_R
            "DEAD_TIME_MARGIN", "DEFAULT_DEAD_TIME", "DEFAULT_SAMPLE_RATE", "DesignReport", "expected_dead_voltage",
            "expected_dead_width", "friction_samples", "FRICTION_SE", "infer_waveforms", "LIMIT_MARGIN",
            "load_plan_waveforms", "LOCKED_TIME_CONSTANTS", "LOW_SPEED_FRACTION", "margin_problems",
-           "MAX_ELECTRICAL_STEP", "MAX_FRICTION_SAMPLES", "MAX_SAMPLE_RATE", "mechanical_segments",
+           "MAX_ELECTRICAL_STEP", "MAX_RAMP_SAMPLES", "MAX_FRICTION_SAMPLES", "MAX_SAMPLE_RATE", "mechanical_segments",
            "MIN_DURATION_FRACTION", "min_durations", "MIN_LOCKED_TIME_CONSTANTS", "MIN_SAMPLE_RATE",
            "MIN_SAMPLES_PER_TIME_CONSTANT", "MIN_SEGMENT_SAMPLES", "MIN_SPIN_TIME_CONSTANTS", "MotorTimes",
            "NOISE_FRACTION", "OptimalDesign", "optimize_plan", "PEAK_WINDOW_SHARPNESS", "PLAN_MAX_ELECTRICAL_STEP",
