@@ -118,7 +118,10 @@ def _connect(scheduler: str, wait: float, lost: _Lost | None):
     security = check_address(scheduler)
     deadline = time.monotonic() + wait
     while True:
-        attempt = max(1.0, min(CONNECT_TIMEOUT, deadline - time.monotonic()))
+        # The client keeps an attempt's timeout for its later connections to the scheduler (dask's connection
+        # pool): one attempt may take CONNECT_TIMEOUT, or a busy scheduler would count as lost; within a
+        # reconnect wait, no longer than what is left of it.
+        attempt = CONNECT_TIMEOUT if wait <= 0 else max(1.0, min(CONNECT_TIMEOUT, deadline - time.monotonic()))
         try:
             with _quiet():
                 return Client(scheduler, timeout=f"{attempt}s", security=security)
