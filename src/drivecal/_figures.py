@@ -111,33 +111,39 @@ def convergence(history: np.ndarray, names: Sequence[str], ref: np.ndarray, agai
 
 
 def estimates(names: Sequence[str], units: Sequence[str], estimate: np.ndarray, ci95: np.ndarray,
-              identifiable: Sequence[bool], ref: np.ndarray, against_truth: bool):
-    """Each estimate with its 95 % interval, as a deviation (%) from ``ref`` (the truth or the estimate).
-
+              identifiable: Sequence[bool], ref: np.ndarray, reference: str):
+    """Each estimate with its 95 % interval against a reference value: the truth, the prior or the estimate.
+    A parameter whose reference is not zero is shown as a deviation in % of it; one whose reference is zero
+    (a bench effect such as ``v_dead`` or an offset, whose prior is none) as its value in its engineering unit.
     Args:
-        names, units: the parameters and their units.
+        names, units: the parameters and their SI units.
         estimate: shape (n,), SI; ci95: shape (n, 2), SI; identifiable: shape (n,).
-        ref: shape (n,), SI; against_truth: ``ref`` is the truth (else the estimate).
+        ref: shape (n,), SI: the reference values.
+        reference: what ``ref`` is, in words for the legend and axis (``"truth"``, ``"prior"``, ``"estimate"``).
     """
+    from ._units import display_unit
+
     estimate, ci95, ref = np.asarray(estimate), np.asarray(ci95), np.asarray(ref)
     fig, axes = plt.subplots(1, len(names), figsize=(3.0 * len(names), 3.4), squeeze=False)
     for i, (ax, n) in enumerate(zip(axes[0], names)):
-        est = 100.0 * (estimate[i] - ref[i]) / ref[i]
-        ax.axhline(0.0, color="C0", lw=2, label="truth" if against_truth else "estimate")
+        relative = bool(ref[i] != 0.0 and np.isfinite(ref[i]))
+        scale, shown = display_unit(max(abs(estimate[i]), *np.abs(ci95[i])) if not relative else ref[i], units[i])
+        f = (lambda x, r=ref[i]: 100.0 * (x - r) / abs(r)) if relative else (lambda x, s=scale: x / s)
+        est = f(estimate[i])
+        ax.axhline(f(ref[i]), color="C0", lw=2, label=reference)
         if identifiable[i]:
-            lo, hi = 100.0 * (ci95[i] - ref[i]) / ref[i]
+            lo, hi = f(ci95[i][0]), f(ci95[i][1])
             ax.errorbar([0], [est], yerr=[[est - lo], [hi - est]], fmt="o", color="C3", capsize=6,
                         label="estimate, 95 % CI")
-            ax.set_title(f"{n} [{units[i]}]\n{estimate[i]:.5g}", fontsize=10)
+            ax.set_title(f"{n} [{shown or '-'}]\n{estimate[i] / scale:.5g}", fontsize=10)
         else:
             ax.plot([0], [est], "x", color="0.4", ms=10, label="held at prior")
-            ax.set_title(f"{n} [{units[i]}]\nnot identifiable", fontsize=10, color="C3")
-        ax.set_xticks([])
-        ax.set_xlim(-1, 1)
+            ax.set_title(f"{n} [{shown or '-'}]\nnot identifiable", fontsize=10, color="C3")
+        ax.set_ylabel(f"deviation from the {reference} [%]" if relative else f"{n} [{shown or '-'}]", fontsize=8)
+        ax.set(xticks=[], xlim=(-1, 1))
         ax.grid(alpha=0.3, axis="y")
-    axes[0, 0].set_ylabel("deviation from " + ("truth" if against_truth else "estimate") + " [%]")
     axes[0, 0].legend(fontsize=8, loc="best")
-    fig.suptitle("Estimates with 95 % confidence intervals")
+    fig.suptitle(f"Estimates with 95 % confidence intervals, against the {reference}")
     fig.tight_layout()
     return fig
 

@@ -31,7 +31,7 @@ MOVED: dict[str, tuple[str, ...]] = {
     "motor": ("physics._motor",),
     "optimal": ("design._optimal", "design._design_space"),
     "plots": ("report.plots", "fleet._report"),
-    "record": ("report._record", "results._record"),
+    "record": ("report._record", "results._record", "diagnose._judge"),
     "saturation": ("diagnose._saturation",),
     "stepbench": ("bench._step",),
     "traced": ("model._lowered_cache",),
@@ -68,7 +68,7 @@ class _MovedModule(types.ModuleType):
         raise AttributeError(f"module {self.__name__!r} has no attribute {attr!r}")
 
     def __call__(self, *args, **kwargs):
-        from .fitting import fit
+        from .diagnose import fit
 
         return fit(*args, **kwargs)
 

@@ -211,6 +211,11 @@ def test_fit_exit_status_is_the_verdicts(tmp_path, poor_bench, capsys):
     doc = json.loads(capsys.readouterr().out)
     assert Status.MISMATCH.exit_code == 4 and doc["verdict"]["status"] == "mismatch"
     assert doc["verdict"]["headline"].startswith("model mismatch suspected: most likely")
+    # The Python API judges the same fit of the same data as the command: the same verdict, word for word.
+    import drivecal as dc
+
+    cal = dc.fit(dc.load_bench(EXAMPLES / "inverter_bench.csv", pole_pairs=4.0, nominal_R=0.45), dc.DEFAULT_MOTOR)
+    assert cal.to_dict()["verdict"] == doc["verdict"] and cal.verdict.exit_code == 4
 
 
 def test_a_fit_that_did_not_converge_exits_5():

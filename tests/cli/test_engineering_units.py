@@ -60,7 +60,7 @@ def test_the_html_report_uses_engineering_units(fitted):
     page = (out / "report.html").read_text(encoding="utf-8")
     summary = re.search(r'<table class="summary">.*?</table>', page).group(0)
     cells = re.findall(r"<td[^>]*>(.*?)</td>", summary)
-    assert cells[:3] == ["R", "mΩ", cells[2]] and re.fullmatch(r"4[45]\d\.\d{3}", cells[2]), cells[:8]
+    assert cells[:3] == ["R", "mΩ", "450"] and re.fullmatch(r"4[45]\d\.\d{3}", cells[3]), cells[:8]  # prior, estimate
     assert "mH" in cells and "mWb" in cells and "SI unit" not in summary
     # the JSON written beside it stays SI
     doc = json.loads((out / "report.json").read_text())
@@ -76,9 +76,19 @@ def test_the_summary_of_a_traction_motor_reads_in_milliohms_and_microhenries():
         "lambda_m": {"estimate": 0.0533, "se": 0.0, "ci95": None, "unit": "Wb", "identifiable": False,
                      "reason": "the rotor never turns"}}}
     cells = re.findall(r"<td[^>]*>(.*?)</td>", summary_html(fit))
-    assert cells[:6] == ["R", "mΩ", "4.299440", "0.000026", "4.299390", "4.299490"]
-    assert cells[8:14] == ["Ld", "µH", "450.93", "0.31", "450.32", "451.54"]
-    assert cells[16:20] == ["lambda_m", "mWb", "53.3", "-"]
+    # parameter, unit, prior, estimate, SE, CI low, CI high, relative half-width, change against the prior
+    assert cells[:7] == ["R", "mΩ", "-", "4.299440", "0.000026", "4.299390", "4.299490"]
+    assert cells[10:17] == ["Ld", "µH", "-", "450.93", "0.31", "450.32", "451.54"]
+    assert cells[20:25] == ["lambda_m", "mWb", "-", "53.3", "-"]
+
+
+def test_the_summary_shows_the_prior_and_the_change_against_it_in_the_rows_unit():
+    fit = {"parameters": {"Ld": {"estimate": 0.000450932, "se": 3.1e-7, "ci95": [0.000450324, 0.00045154],
+                                 "unit": "H", "identifiable": True, "prior": 0.000451}}}
+    cells = re.findall(r"<td[^>]*>(.*?)</td>", summary_html(fit))
+    assert cells[:3] == ["Ld", "µH", "451"]
+    # (450.932 - 451) / 451 = -0.0151 %, to the decimals of the relative half-width beside it (0.13 %)
+    assert cells[7] == "0.13" and cells[8] == "-0.02", cells
 
 
 def test_fit_json_stays_si(capsys):

@@ -24,7 +24,7 @@ from drivecal.fleet import _cluster
 from helpers.cli import run_cli
 
 MOTOR = dc.load_motor(None)
-EXIT_CLUSTER_LOST = 8  # the README's exit status of a batch whose cluster was lost
+EXIT_CLUSTER_LOST = 8  # docs/exit-statuses.md: the exit status of a batch whose cluster was lost
 LOOPBACK = {"127.0.0.1", "::1"}
 
 #: A LocalCluster in a process of its own (its scheduler, and nannies whose workers are child processes),

@@ -12,7 +12,8 @@ For each motor of a table such as ``shared/data/motors.csv`` (566 real PMSMs):
 4. **bench**: the plan run on the Jaxonomy engine with the *true* motor
    (:func:`drivecal.stepbench.step_engine_bench`), plus seeded Gaussian
    sensor noise of ``NOISE_FRACTION`` of the current limit (full scale);
-5. **fit**: :func:`drivecal.fit` from the datasheet values (the prior);
+5. **fit**: :func:`drivecal.fitting.fit` from the datasheet values (the prior; the estimates are
+   judged here, so the fit is not also given a verdict);
 6. **verdict**: each estimate's distance to the truth in standard errors;
    within ``PASS_SE`` passes. With 566 x 4 estimates, 3 SE would fail about
    six times by chance (0.27 % each); 4 SE fails with probability 6e-5 each,
@@ -31,7 +32,7 @@ import numpy as np
 
 from drivecal.design import NOISE_FRACTION, auto_design
 from drivecal import DrivecalError
-from drivecal import fit
+from drivecal.fitting import fit
 from drivecal.physics import ESTIMATED, MotorParams
 from drivecal.bench import step_engine_bench
 

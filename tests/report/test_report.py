@@ -111,7 +111,8 @@ def test_report_of_saved_json_reproduces_the_html(demo_run, tmp_path, capsys):
     again = tmp_path / "again.html"
     assert main(["report", str(out / "report.json"), "--html", str(again)]) == 0
     text = capsys.readouterr().out
-    assert "== locked_q_step: partially calibrated: Ld, lambda_m not identifiable by this plan" in text
+    assert ("== locked_q_step\n[[Verdict]] partially calibrated: Ld, lambda_m not identifiable by this plan "
+            "(status: partial)\n") in text
     assert "[[Fit Statistics]]" in text
     first = TIME_STAMP.sub("", (out / "report.html").read_text())
     second = TIME_STAMP.sub("", again.read_text())
@@ -147,3 +148,28 @@ def test_report_and_gains_have_help(capsys):
         assert main([command, "--help"]) == 0
     out = capsys.readouterr().out
     assert "--html" in out and "--bandwidth" in out and "[Hz]" in out
+
+
+def test_the_sections_an_engineer_reads_from_a_result_with_a_plan(default_fit, default_bench):
+    """The plan as recorded, a fitted delay, a flagged speed and a specification: each shown as the JSON says
+    (the bench-file case, without a plan, is the browser test's)."""
+    from drivecal.report._sections import checks_html, plan_html, setup_html
+
+    doc = json.loads(json.dumps(build_result(default_fit, default_bench, plan=dc.default_plan(), noise_sigma=NOISE)))
+    plan = plan_html(doc)
+    assert plan.startswith("<p>The plan as recorded: sample rate 20 kHz, DC link 48 V, current limit")
+    assert plan.count("<tr>") == 1 + len(dc.default_plan().segments)
+    doc["parameters"]["delay"] = {"estimate": 1.002, "se": 0.021, "ci95": [0.961, 1.043], "unit": "samples",
+                                  "identifiable": True, "prior": 1.0}
+    doc["speed"] = {"mode": "output", "requested": None, "flagged": True, "input_error_ratio": 126.0,
+                    "input_error_ratio_max": 0.1, "resolution": {"summary": "steps of 1.534 rad/s"}, "reason": "x"}
+    doc["measured_speed"] = True
+    doc["spec"] = {"status": "fail", "headline": "fail: Lq outside its tolerance", "parameters": [], "advice": []}
+    setup = setup_html(doc)
+    assert "fitted: 1.002 ± 0.041 samples (95 %; started from 0)" in setup
+    assert "a second measured output" in setup and "steps of 1.534 rad/s" in setup
+    checks = re.findall(r'<tr class="(\w+)"><td class="l">([^<]*)</td>', checks_html(doc))
+    states = {name: state for state, name in checks}
+    assert states["resolution of the measured speed"] == "done"
+    assert states["specification (the motor file&#x27;s tolerances)"] == "failed"
+    assert states["noise level of the residuals"] == "done" and states["convergence of the fit"] == "done"

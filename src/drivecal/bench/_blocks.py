@@ -12,6 +12,49 @@ from ..physics import MAGNETIC, EXPONENTS, MotorParams, is_saturating
 
 #: The fields of the saturating law that the flux-state block holds as constants.
 _LAW = MAGNETIC + EXPONENTS + ("i_ref",)
+#: The block's parameters in the order of ``jaxonomy.library.drives.PMSM``'s signature.
+_BLOCK_PARAMETERS = ("R", "Ld", "Lq", "lambda_m", "pole_pairs", "J", "B", "T_load")
+
+
+class _ShowsValues:
+    """A PMSM block whose repr shows the machine: each parameter in its engineering unit, not jaxonomy's
+    ``PMSM(system_id=1, name='pmsm', ...)``."""
+
+    _law_shown: dict[str, float] = {}
+
+    def __repr__(self) -> str:
+        from .._units import format_quantity
+        from ..physics import UNITS
+
+        params = self.dynamic_parameters
+        order = [n for n in _BLOCK_PARAMETERS if n in params] + sorted(set(params) - set(_BLOCK_PARAMETERS))
+        try:
+            values = [(n, float(params[n])) for n in order]
+        except (TypeError, ValueError):  # a batched or traced parameter: jaxonomy's own repr
+            return super().__repr__()
+        shown = ", ".join(f"{n} = {format_quantity(v, UNITS.get(n, '-'))}" for n, v in values)
+        rotor = "rotor locked" if self._locked else "rotor free"
+        law = ", ".join(f"{n} = {format_quantity(v, UNITS.get(n, '-'))}" for n, v in self._law_shown.items())
+        law = f"; flux states, saturating law: {law}" if self._law_shown else ""
+        return f"{type(self).__name__}({self.name!r}: {shown}; {rotor}{law})"
+
+
+def _pmsm_class() -> type:
+    """``jaxonomy.library.drives.PMSM`` with the readable repr (made on first use: jaxonomy loads then)."""
+    cls = globals().get("PMSM")
+    if cls is None:
+        from jaxonomy.library.drives import PMSM as Base
+
+        cls = type("PMSM", (_ShowsValues, Base), {"__module__": __name__, "__qualname__": "PMSM",
+                                                  "__doc__": Base.__doc__})
+        globals()["PMSM"] = cls
+    return cls
+
+
+def __getattr__(name: str):
+    if name == "PMSM":  # pickle finds the block's class here by name
+        return _pmsm_class()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: Any = None, name: str = "pmsm",
@@ -28,16 +71,15 @@ def pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: Any =
             the load; the block itself has no Coulomb friction).
 
     Returns:
-        The block; input port 0 is ``[v_d, v_q]`` (V), output port 0 the state,
+        The block (a ``jaxonomy.library.drives.PMSM`` whose repr shows its parameters in
+        engineering units); input port 0 is ``[v_d, v_q]`` (V), output port 0 the state,
         output port 1 the torque (N*m). A motor with magnetic saturation
         (``physics.is_saturating``) is a flux-state block (:func:`flux_pmsm_block`).
     """
-    from jaxonomy.library.drives import PMSM
-
     if is_saturating(motor):
         return flux_pmsm_block(motor, locked=locked, initial_state=initial_state, name=name, load_port=load_port)
 
-    return PMSM(
+    return _pmsm_class()(
         R=float(motor.R),
         Ld=float(motor.Ld),
         Lq=float(motor.Lq),
@@ -76,7 +118,9 @@ def flux_pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: 
         return MotorParams(**{k: p[k] for k in ("R", "Ld", "Lq", "lambda_m", "pole_pairs", "J", "B", "T_load")},
                            **law)
 
-    class FluxPMSM(PMSM):
+    class FluxPMSM(_ShowsValues, PMSM):
+        _law_shown = law
+
         def initialize(self, R, Ld, Lq, lambda_m, pole_pairs, J, B, T_load, initial_state=None, locked=False,
                        enable_load_port=False):
             m = machine(dict(R=R, Ld=Ld, Lq=Lq, lambda_m=lambda_m, pole_pairs=pole_pairs, J=J, B=B, T_load=T_load))

@@ -23,6 +23,7 @@ from ..physics import (MotorParams, coulomb_friction, dead_time_error, delayed, 
                        switching_ripple,
                        rotor_frame, sensor_offsets)
 from ..plan import Plan, Segment
+from ._encoder import encoder_readings
 
 #: Engine tolerances: tight enough that the bench is exact to ~1e-9 A.
 ENGINE_RTOL = 1e-12
@@ -234,7 +235,7 @@ def _run_on_engine(setup, sample_rate: float, *, label: str):
 
 
 def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
-                 delay_samples: float = 0) -> BenchData:
+                 delay_samples: float = 0, encoder_counts: int | None = None) -> BenchData:
     """Noise-free bench data: the plan run on the Jaxonomy engine.
 
     The bench effects set in ``motor`` are part of the truth: dead time
@@ -257,7 +258,14 @@ def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
         delay_samples: the inverter's PWM/computation delay (samples; 0.5,
             1.5 where the PWM loads its duty mid-period); the file records the
             commands, as a real inverter log does.
+        encoder_counts: record ``w_m`` and ``theta_e`` as an incremental encoder of
+            this many counts per revolution does: the angle in whole counts, the
+            speed the difference of two counts over one sample
+            (:func:`encoder_readings`; implies ``record_speed``). None: exact.
     """
+    if encoder_counts is not None:
+        exact = engine_bench(plan, motor, record_speed=True, delay_samples=delay_samples)
+        return encoder_readings(exact, encoder_counts, float(motor.pole_pairs))
     plan.check_feasible()
     _quiet_jaxonomy()
     segments = []

@@ -56,7 +56,9 @@ def _fit_table(cal: Calibration) -> Table:
               help="What a measured w_m is: an input of the electrical equations, a second measured output (the "
                    "speed simulated from J, B and the friction and fitted to it, weighed by the noise of each "
                    "sensor: the motor file's current_noise and speed_noise, else estimated), or ignored. "
-                   "Default: output when J, B, T_coulomb or T_load are estimated, else input.")
+                   "Default: output when J, B, T_coulomb or T_load are estimated, else input, unless the speed "
+                   "is too coarse or noisy to be an exact input (a quantised encoder difference: the output says "
+                   "so), when it is an output if the motor file states J and B.")
 @click.option("--noise", type=_Positive(), default=None,
               help="The current sensor's noise standard deviation [A], if known: a sigma_hat well above it "
                    "is reported as model mismatch. Default: the motor file's current_noise, else the noise "
@@ -125,7 +127,7 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
         click.get_current_context().call_on_close(renderer.close)
     from rich.markup import escape
 
-    from ..data import load_bench
+    from ..data import choose_speed, load_bench
     from ..diagnose import check_saturation
     from ..identify import check_requested
     from ..report import build_result
@@ -145,9 +147,12 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
         chosen = chosen if not isinstance(chosen, tuple) else tuple(e for e in chosen if e != "delay")
     prior = motor_file.motor
     bench = load_bench(bench_path, pole_pairs=float(prior.pole_pairs), nominal_R=float(prior.R), format=format_path)
-    speed_mode = _speed_mode(speed_mode, measured_speed, names)
-    experiment = bench.experiment(speed=speed_mode, delay_samples=motor_file.delay_samples,
-                                  current_noise=motor_file.current_noise, speed_noise=motor_file.speed_noise)
+    current_noise = noise if noise is not None else motor_file.current_noise
+    speed = choose_speed(bench, prior, names, speed=_requested_speed(speed_mode, measured_speed),
+                         current_noise=current_noise, speed_noise=motor_file.speed_noise,
+                         mechanics_given=motor_file.mechanics_given)
+    experiment = bench.experiment(speed=speed.mode, delay_samples=motor_file.delay_samples,
+                                  current_noise=current_noise, speed_noise=motor_file.speed_noise)
     if motor_file.estimate is not None:
         check_requested(motor_file.names, experiment, bench_path)
     console = _console(as_json)
@@ -168,7 +173,8 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
             noise_source = "--noise"
         payload = build_result(cal, bench, experiment=experiment, noise_sigma=noise, noise_source=noise_source,
                                input_path=bench_path,
-                               motor_file=motor_path, measured_speed=speed_mode == "input" and bench.has_measured_speed,
+                               motor_file=motor_path, measured_speed=speed.mode == "input" and bench.has_measured_speed,
+                               speed=speed.to_dict(),
                                saturation=saturation.to_dict() if saturation.tested else None,
                                effects=selection.to_dict(), tolerance=motor_file.tolerance,
                                flux_maps=None if maps is None else maps.to_dict())
@@ -180,11 +186,13 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
         click.echo(json.dumps(payload, indent=2))
         return exit_code
     ident = cal.identifiability
-    speed = "measured speed as input" if payload["measured_speed"] else "speed simulated from J and B"
+    speed_words = "measured speed as input" if payload["measured_speed"] else "speed simulated from J and B"
     if experiment.speed_outputs:
-        speed = (f"measured speed as a second output (weight {float(experiment.speed_weight):.3g} A per rad/s: "
-                 "current noise over speed noise)")
-    console.print(f"identifiability: {ident.summary(markup=True)}; {speed}")
+        speed_words = (f"measured speed as a second output (weight {float(experiment.speed_weight):.3g} A per "
+                       "rad/s: current noise over speed noise)")
+    console.print(f"identifiability: {ident.summary(markup=True)}; {speed_words}")
+    if speed.reason:
+        console.print(f"speed: [yellow]{escape(speed.reason)}[/yellow]")
     for name, why in ident.reasons.items():
         console.print(f"  [red]{name}[/red]: {why}")
     console.print(_fit_table(cal))
@@ -234,17 +242,15 @@ def _print_spec(spec: dict, parameters: dict, console) -> None:
         console.print(f"  [yellow]{escape(line)}[/yellow]")
 
 
-def _speed_mode(speed_mode, measured_speed, names) -> str:
-    """--speed, else the legacy --measured-speed/--simulated-speed, else output when mechanics are estimated."""
-    from ..physics import MECHANICAL
-
+def _requested_speed(speed_mode, measured_speed) -> str | None:
+    """--speed, else the legacy --measured-speed/--simulated-speed, else None (``data.choose_speed`` decides)."""
     if speed_mode is not None:
         if measured_speed is not None:
             raise click.UsageError("give --speed or --measured-speed/--simulated-speed, not both")
         return speed_mode
     if measured_speed is not None:
         return "input" if measured_speed else "ignore"
-    return "output" if any(n in MECHANICAL for n in names) else "input"
+    return None
 
 
 def _effects_line(selection) -> str:

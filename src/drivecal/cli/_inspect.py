@@ -49,6 +49,9 @@ def inspect(log_path, format_path, out_path):
     if found.windows:
         console.print(f"proposed {len(found.windows)} segment windows: "
                       + ", ".join(f"{escape(p.window.name)} ({p.last - p.first + 1} samples)" for p in found.windows))
+    if found.speed:
+        console.print(f"speed channel {escape(found.columns['w_m'])}: {escape(found.speed)}; `drivecal fit` weighs it "
+                      "by that (a second measured output where it is too coarse to be an exact input)")
     if out_path is None:
         click.echo(found.format_text, nl=False)
         return 0

@@ -23,9 +23,8 @@ def report(result_json, html_out, as_json):
     """
     if html_out is not None:
         _check_out(html_out, "--html", example="out/report.html")
-    from ..fitting import Calibration
     from ..report import write_html_report
-    from ..results import load_result, result_fits
+    from ..results import Calibration, load_result, result_fits
 
     doc = load_result(result_json)
     fits = result_fits(doc)
@@ -33,9 +32,8 @@ def report(result_json, html_out, as_json):
         click.echo(json.dumps({k: f.get("verdict") for k, f in fits.items()}, indent=2))
     else:
         for label, fit_doc in fits.items():
-            verdict = fit_doc.get("verdict") or {}
-            click.echo(f"== {label}: {verdict.get('headline', '')}")
-            click.echo(str(Calibration.from_dict(fit_doc)))
+            click.echo(f"== {label}")
+            click.echo(str(Calibration.from_dict(fit_doc, result_json)))  # the verdict first
             click.echo()
     if html_out is not None:
         write_html_report(doc, html_out)

@@ -54,6 +54,10 @@ def _describe(model: str, modulation: str, dead_time: float, device_drop: float,
 @click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True, help="Seed of the sensor noise.")
 @click.option("--speed/--no-speed", "record_speed", default=True, show_default=True,
               help="Also write the measured mechanical speed w_m [rad/s] (an encoder; noise-free).")
+@click.option("--encoder-counts", "encoder_counts", type=click.IntRange(min=1), default=None, metavar="N",
+              help="Record w_m and theta_e as an N-count incremental encoder does: the angle in whole counts, the "
+                   "speed the difference of two counts over one sample (steps of 2*pi/N * sample rate). "
+                   "Default: exact.")
 @click.option("--inverter", "model", type=click.Choice(["averaged", "switching"]), default=None,
               help="The inverter: 'averaged' (the commanded dq voltage held over each sample, on the Jaxonomy "
                    "engine) or 'switching' (center-aligned carrier-comparison PWM, one carrier period per "
@@ -70,7 +74,8 @@ def _describe(model: str, modulation: str, dead_time: float, device_drop: float,
                    "the plan's [inverter] device_drop, else 0.")
 @click.option("--out", "out_path", required=True, type=click.Path(),
               help="Bench file to write: .csv, .parquet or .mat (format from the suffix).")
-def simulate(plan_path, motor_path, noise, seed, record_speed, model, modulation, dead_time, device_drop, out_path):
+def simulate(plan_path, motor_path, noise, seed, record_speed, encoder_counts, model, modulation, dead_time, device_drop,
+             out_path):
     """Run PLAN.toml on the synthetic bench and write a bench file.
 
     The plan runs on the inverter of the plan's [inverter] table, or of
@@ -93,6 +98,8 @@ def simulate(plan_path, motor_path, noise, seed, record_speed, model, modulation
     out = _check_out(out_path, "--out", example="out/bench.csv")
     if out.suffix.lower() not in (".csv", ".parquet", ".mat"):
         raise DrivecalError(f"--out {out}: unknown format '{out.suffix}'; use a .csv, .parquet or .mat name.")
+    if encoder_counts is not None and not record_speed:
+        raise DrivecalError("--encoder-counts records the speed; leave out --no-speed.")
     from ..errors import PlanError
     from ..plan import load_plan
 
@@ -136,6 +143,10 @@ def simulate(plan_path, motor_path, noise, seed, record_speed, model, modulation
                                   record_speed=record_speed)
             except PlanError as exc:
                 raise DrivecalError(f"--inverter switching: {exc}") from None
+        if encoder_counts is not None:
+            from ..bench import encoder_readings
+
+            bench = encoder_readings(bench, encoder_counts, float(motor_file.motor.pole_pairs))
         bench = bench.add_noise(noise, seed)
         bench.save(out)
     console.print(f"wrote {out}: {bench.num_samples} samples in {len(bench.segments)} segment(s) at "

@@ -29,6 +29,7 @@ from ..physics import dq_to_abc
 from .._stats import noise_level
 from .._io import atomic_path
 from ._readers import TABLE_FORMATS
+from ._speed import SpeedResolution, speed_resolution
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,18 +141,21 @@ class BenchData:
     def noise_levels(self) -> tuple[float, float]:
         """The current and speed sensors' noise, estimated from the samples: ``(sigma_i, sigma_w)`` (A, rad/s).
 
-        Each is the median over segments (and over i_d, i_q) of the robust second-difference
-        estimate (``_stats.noise_level``), which slow signals barely touch; the speed's from the
-        free segments that measured it. A noise-free speed gets a floor of 1e-9 of its range
-        (1e-12 rad/s at least), so the weight stays finite.
+        The current's is the median over segments (and over i_d, i_q) of the robust second-difference
+        estimate (``_stats.noise_level``), which slow signals barely touch. The speed's, from the free
+        segments that measured it, is its resolution's (:meth:`speed_resolution`): that level, or a
+        quantised speed's rounding error ``step / sqrt(12)`` where larger, times the square root of the
+        samples each value is held; a noise-free speed gets a floor of 1e-9 of its range (1e-12 rad/s at
+        least), so the weight stays finite.
         """
         sigma_i = float(np.median([noise_level(s.currents, axis=0) for s in self.segments]))
-        speeds = [s.w_m for s in self.segments if s.w_m is not None and not s.locked]
-        if not speeds:
-            return sigma_i, math.nan
-        span = max(float(np.max(np.abs(w))) for w in speeds)
-        sigma_w = float(np.median([noise_level(w) for w in speeds]))
-        return sigma_i, max(sigma_w, 1e-9 * span, 1e-12)
+        resolution = self.speed_resolution()
+        return sigma_i, math.nan if resolution is None else resolution.sigma
+
+    def speed_resolution(self) -> SpeedResolution | None:
+        """How exact the free segments' measured speed is (steps, update period, noise), or None without one."""
+        return speed_resolution([s.w_m for s in self.segments if s.w_m is not None and not s.locked],
+                                self.sample_rate)
 
     def with_currents(self, currents: np.ndarray) -> BenchData:
         """The same run with the currents replaced by ``currents`` (A), shape (M, 2)."""

@@ -19,6 +19,7 @@ from ._format_file import BenchFormat, load_format
 from ._log_units import COLUMN_QUANTITY, SI_UNIT, canonical_unit, to_si
 from ._logs import LogChannel
 from ._mapping import check_mapped, log_channels
+from ._speed import speed_resolution
 from ._values import time_in_seconds
 from ._windows import Proposal, propose_windows
 
@@ -58,7 +59,8 @@ class ChannelInfo:
 
 @dataclasses.dataclass(frozen=True)
 class Inspection:
-    """A log's channels, the mapping used, the proposed windows and the proposed format file's text."""
+    """A log's channels, the mapping used, the proposed windows and the proposed format file's text; ``speed``:
+    the steps of the speed channel where it is quantised (``SpeedResolution.describe``), else empty."""
 
     path: str
     channels: tuple[ChannelInfo, ...]
@@ -66,6 +68,7 @@ class Inspection:
     units: dict[str, str]
     windows: tuple[Proposal, ...]
     format_text: str
+    speed: str = ""
 
 
 def guess_columns(names: list[str]) -> dict[str, str]:
@@ -113,7 +116,12 @@ def inspect_log(path: str | Path, format: str | Path | BenchFormat | None = None
         proposals = propose_windows(time_of, si("v_d"), si("v_q"), si("w_m"))
     windows = proposals if proposals else []
     text = _format_text(path, columns, units, windows, fmt)
-    return Inspection(str(path), tuple(infos), columns, units, tuple(windows), text)
+    speed = ""
+    if "w_m" in columns and time_of is not None and channels[columns["w_m"]].values.shape == time_of.shape:
+        w = channels[columns["w_m"]].values
+        found = speed_resolution([to_si(w, units["w_m"]) if "w_m" in units else w], _rate(time_of))
+        speed = found.describe() if found.step is not None else ""
+    return Inspection(str(path), tuple(infos), columns, units, tuple(windows), text, speed)
 
 
 def _time(channels: dict[str, LogChannel], columns: dict[str, str], units: dict[str, str]) -> np.ndarray | None:

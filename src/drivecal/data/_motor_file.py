@@ -3,7 +3,7 @@
 Every physical value is either a plain number in SI units or a string with a
 unit, e.g. ``R = "0.45 ohm"``, ``Ld = "3.2 mH"``. A wrong key or a unit of the
 wrong kind is refused with one sentence naming the file, the key and the fix.
-The schema is documented in the README ("Motor files") and exemplified in
+The schema is documented in docs/bench-files.md ("Motor files") and exemplified in
 ``examples/``.
 """
 
@@ -73,6 +73,8 @@ class MotorFile(BaseModel):
             the default motor's values (the CLI warns about them).
         tolerance: the specification of the ``[tolerance]`` table, ``{name: Tolerance}`` (limits in
             SI; empty: no specification, no pass/fail).
+        mechanics_given: the file states J and B (the default motor has its own): a measured speed too
+            coarse for an input can then be a second output, the speed simulated from them.
     """
 
     model_config = ConfigDict(frozen=True, arbitrary_types_allowed=True)
@@ -84,6 +86,7 @@ class MotorFile(BaseModel):
     source: str = "default motor"
     defaulted: tuple[str, ...] = ()
     tolerance: dict[str, Tolerance] = Field(default_factory=dict)
+    mechanics_given: bool = True
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -138,7 +141,7 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
     tolerance = {} if tolerance_table is None else tolerances_of(tolerance_table, motor.all_values(), source)
     return MotorFile(motor=motor, estimate=estimate, delay_samples=spec.delay_samples, current_noise=spec.current_noise,
                      speed_noise=spec.speed_noise, source=source,
-                     defaulted=defaulted, tolerance=tolerance)
+                     defaulted=defaulted, tolerance=tolerance, mechanics_given="J" in data and "B" in data)
 
 
 def load_motor(path: str | Path | None) -> MotorFile:

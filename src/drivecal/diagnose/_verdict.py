@@ -24,6 +24,10 @@ The criterion, kept simple on purpose so a reader can check it by hand:
    level, which the slow currents of a step or a spin-up barely touch), and the
    details say so; where it cannot be estimated the details say that the check
    is off, and why.
+   Where a measured speed too coarse or noisy to be exact (``drivecal.data.choose_speed``: flagged) was
+   used as an exact input, the mismatch is put down to it first, its fix ``--simulated-speed`` or
+   ``--speed output``, and the effect tests' findings as signatures it can leave too (their fixes, such
+   as a delay to raise, are not advised); without mismatch it is a note.
 3. **partially calibrated: <names> not identifiable by this plan** when the
    identifiability check held some parameters at their prior.
 4. **calibrated** otherwise.
@@ -151,9 +155,13 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
     mismatch = False
     # The one most likely unmodelled cause first (the score tests come most significant first), with its fix.
     causes = [e for e in res.get("unmodelled_effects") or [] if e["suspected"]]
+    speed = _speed_finding(result.get("speed") or {})
     if causes:
         mismatch = True
-        details += [e["message"] for e in causes]
+        details += [e["message"] if not speed[1] else
+                    f"the residuals carry a signature like that of {e['effect'].replace('_', ' ')} (score test p = "
+                    f"{e['p_value']:.2g}), which the speed input's errors leave too: correct the speed first"
+                    for e in causes]
     noise = ("the sensor noise estimated from the samples" if res.get("sigma_estimated")
              else "the stated sensor noise")
     if res and not res.get("noise_consistent", True):
@@ -187,14 +195,19 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
                               if v["value"] is not None and v["se"] is not None)
             kind = "magnetic saturation" if choice["effect"] in MAGNETIC_EFFECTS else "bench effect"
             details.append(f"{kind} fitted because the data support it: {choice['effect'].replace('_', ' ')}"
-                           f" ({shown}; likelihood-ratio p = {choice['p_value']:.2g})")
+                           f" ({shown}; likelihood-ratio p = {choice['p_value']:.2g})"
+                           + ("; the speed input's errors can leave its signature too" if speed[1] else ""))
     if not_ident:
         details.append(f"{', '.join(not_ident)} not identifiable by this plan: held at the prior, not calibrated")
+    if speed[0]:
+        details.insert(0 if speed[1] and mismatch else len(details), speed[0])
     if not result["converged"]:
         status, headline = Status.NOT_CONVERGED, f"not calibrated: the fit did not converge ({result.get('message', '')})"
     elif mismatch:
         status, headline = Status.MISMATCH, "model mismatch suspected"
-        if causes:
+        if speed[1]:
+            headline += ": most likely the measured speed input (see the first detail for the fix)"
+        elif causes:
             headline += f": most likely {causes[0]['effect'].replace('_', ' ')} (see the first detail for the fix)"
     elif not_ident:
         status, headline = Status.PARTIAL, f"partially calibrated: {', '.join(not_ident)} not identifiable by this plan"
@@ -203,3 +216,18 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
         if (result.get("effects") or {}).get("magnetic_model") == "saturating":
             headline += ", with magnetic saturation (the saturating law: Ld, Lq, lambda_m at zero current)"
     return {"status": status.key, "headline": headline, "details": details}
+
+
+def _speed_finding(speed: dict[str, Any]) -> tuple[str, bool]:
+    """``(detail, the speed is a flagged exact input)`` from the result's ``speed`` section (empty: nothing to say)."""
+    if not speed.get("flagged"):
+        return "", False
+    summary = (speed.get("resolution") or {}).get("summary")
+    words = (f"the measured speed w_m{f' ({summary})' if summary else ''} could add up to "
+             f"{speed['input_error_ratio']:.3g} times the current noise's variance to the estimates as an exact "
+             f"input (limit {speed['input_error_ratio_max']:g})")
+    if speed.get("mode") == "input":
+        return (words + "; it was one: fit with --simulated-speed (the speed simulated from J and B) or --speed "
+                "output (the speed a second measurement)"), True
+    how = "a second measured output" if speed.get("mode") == "output" else "left out (simulated from J and B)"
+    return f"{words}; it was {how}, so a wrong J or B would show as mismatch", False

@@ -17,12 +17,13 @@ nothing throws: each fit carries its own result code.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import jax
 import numpy as np
 
 from .._stats import t_ppf
-from ..data import BenchData, MotorFile
+from ..data import BenchData, MotorFile, SpeedChoice, choose_speed
 from ..errors import DrivecalError
 from ..identify import Identifiability, assess_identifiability
 from ..model import Experiment, model_experiment, with_experiment_delay
@@ -162,14 +163,16 @@ def fit(
     initial: MotorParams | np.ndarray | None = None,
     names: tuple[str, ...] | None = None,
     options: FitOptions = FitOptions(),
-    measured_speed: bool = True,
+    measured_speed: bool | None = None,
     delay_samples: float | None = None,
     speed: str | None = None,
 ) -> Calibration:
     """Calibrate a motor from bench data.
 
     Identifiability is judged first at ``prior``; parameters the bench run
-    cannot identify are held at their prior and reported as such.
+    cannot identify are held at their prior and reported as such. The fit is
+    not judged here: the package's ``drivecal.fit`` (``drivecal.diagnose.fit``)
+    is this fit with its verdict and residual diagnostics attached.
 
     Args:
         bench: the recorded run.
@@ -179,30 +182,54 @@ def fit(
         initial: starting point (default: ``options.start``, an estimate from the data).
         names: parameters to estimate (default: the motor file's ``estimate``, else R, Ld, Lq, lambda_m).
         options: solver settings.
-        measured_speed: where free segments carry a measured ``w_m``, use it as
-            an input so J and B play no part (see ``BenchData.experiment``).
+        measured_speed: where free segments carry a measured ``w_m``, True uses it as an input so J and B
+            play no part, False simulates the speed from J and B (see ``BenchData.experiment``); None (the
+            default) chooses as ``drivecal fit`` does (``drivecal.data.choose_speed``): an input, unless
+            mechanics are estimated or the speed is too coarse or noisy to be an exact input (a quantised
+            encoder difference), when it is a second measured output; a warning says why.
         delay_samples: the inverter's nominal PWM/computation delay (samples);
             default ``prior.delay``. Estimated when ``"delay"`` is in ``names``.
         speed: what a measured ``w_m`` is, replacing ``measured_speed``: "input", "output"
-            (a second measured output, weighed by the sensors' noise estimated from the data)
-            or "ignore" (see ``BenchData.experiment``).
+            (a second measured output, weighed by the sensors' noise: the motor file's, else estimated
+            from the data) or "ignore" (see ``BenchData.experiment``).
     """
+    experiment, prior, names, _ = fit_setup(bench, prior, names=names, measured_speed=measured_speed,
+                                            delay_samples=delay_samples, speed=speed)
+    return fit_currents(experiment, bench.currents, prior, initial=initial, names=names, options=options,
+                        source=bench.source, delay_samples=float(prior.delay))
+
+
+def fit_setup(
+    bench: BenchData,
+    prior: MotorParams | MotorFile,
+    *,
+    names: tuple[str, ...] | None = None,
+    measured_speed: bool | None = None,
+    delay_samples: float | None = None,
+    speed: str | None = None,
+) -> tuple[Experiment, MotorParams, tuple[str, ...], SpeedChoice]:
+    """What :func:`fit` fits: ``(experiment, prior, names, speed_choice)`` (arguments as :func:`fit`).
+
+    The motor file's estimate list, delay and sensor noises applied; the prior's ``delay`` the nominal
+    delay (samples); the measured speed's role chosen (``drivecal.data.choose_speed``; a warning says
+    why when it is not the one asked for).
+    """
+    noises, mechanics_given = (None, None), True
     if isinstance(prior, MotorFile):
         names = names if names is not None else prior.estimate
         if delay_samples is None:
             delay_samples = prior.delay_samples
+        noises, mechanics_given = (prior.current_noise, prior.speed_noise), prior.mechanics_given
         prior = prior.motor
     names = ESTIMATED if names is None else tuple(names)
     if delay_samples is not None:
         prior = prior.replace(delay=float(delay_samples))
-    delay_samples = float(prior.delay)
-    return fit_currents(
-        bench.experiment(measured_speed=measured_speed, delay_samples=delay_samples, speed=speed),
-        bench.currents,
-        prior,
-        initial=initial,
-        names=names,
-        options=options,
-        source=bench.source,
-        delay_samples=delay_samples,
-    )
+    if speed is None and measured_speed is not None:
+        speed = "input" if measured_speed else "ignore"
+    choice = choose_speed(bench, prior, names, speed=speed, current_noise=noises[0], speed_noise=noises[1],
+                          mechanics_given=mechanics_given)
+    if choice.reason:
+        warnings.warn(f"{bench.source}: {choice.reason}", stacklevel=3)
+    experiment = bench.experiment(delay_samples=float(prior.delay), speed=choice.mode, current_noise=noises[0],
+                                  speed_noise=noises[1])
+    return experiment, prior, names, choice

@@ -3,7 +3,7 @@
 Every physical value is either a plain number in SI units or a string with a
 unit, e.g. ``duration = "10 ms"``, ``v_d = "8 V"`` (parsed in ``drivecal._units``).
 A wrong key or a unit of the wrong kind is refused with one sentence naming the
-file, the key and the fix. The schema is documented in the README ("Plan
+file, the key and the fix. The schema is documented in docs/plans.md ("Plan
 files") and exemplified in ``examples/``. Motor files are read in
 ``drivecal.data``.
 """
@@ -296,7 +296,7 @@ def plan_from_dict(data: dict, source: str = "plan", base: Path | None = None) -
 
 
 def load_plan(path: str | Path) -> Plan:
-    """Read and check a plan TOML file (schema in the README, examples in ``examples/``)."""
+    """Read and check a plan TOML file (schema in docs/plans.md, examples in ``examples/``)."""
     return plan_from_dict(read_toml(path), str(path), Path(path).parent)
 
 

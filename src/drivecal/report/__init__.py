@@ -11,7 +11,8 @@ from ._firmware import SQRT3, FirmwareConstant, FirmwareGains, firmware_gains, t
 from ._firmware_header import c_header
 from ._html import (CSS, FIG_DPI, figure_data_uri, fit_section_html, render_html, spec_html, verdict_html,
                     write_html_report)
-from ._record import build_result, segment_traces
+from ._record import build_result
+from ..diagnose import segment_traces  # its home before drivecal.diagnose computed the verdicts
 # drivecal 0.1's flat `drivecal.report` module (atomic output, the plan as JSON) and `drivecal.record`'s readers,
 # importable from here for one release; their homes are drivecal._io, drivecal.plan and drivecal.results.
 from .._io import atomic_path, prepare_output_dir, save_figure, write_json

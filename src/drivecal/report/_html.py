@@ -28,7 +28,8 @@ from ..identify import Identifiability
 from ..physics import UNITS
 from ..results import escape as _e, format_number as _fmt, summary_html
 from .._io import atomic_path
-from .._units import display_unit, format_quantity, format_value
+from .._units import display_unit, format_value
+from ._sections import checks_html, kv_table, noise_row, plain_words_html, plan_html, quantity, setup_html
 
 #: Resolution of the embedded figures (dots per inch); fixed for byte-identical PNGs.
 FIG_DPI = 80
@@ -48,6 +49,9 @@ figure{margin:1em 0} figure img{max-width:100%;height:auto;border:1px solid #ddd
 figcaption{color:#555;font-size:.9em}
 section.fit{border-top:3px solid #444;margin-top:2em}
 code{font-size:.9em}
+ul.plain{font-size:1.05em} tr.failed td{color:#c62828} tr.skipped td{color:#777}
+details.statistics{margin:1.2em 0;border:1px solid #ccc;padding:.4em .8em}
+details.statistics summary{cursor:pointer;font-weight:bold}
 """
 
 
@@ -107,92 +111,58 @@ def _spec_row(p: Mapping[str, Any], se: float | None) -> str:
             f'<td class="l">{_e(p["tolerance"])}: {shown(p["low"])} .. {shown(p["high"])}</td></tr>')
 
 
-def _quantity(value: Any, unit: str) -> str:
-    """A value of the result JSON for a person (engineering units), '-' where there is none."""
-    return format_quantity(value, unit) if isinstance(value, (int, float)) and np.isfinite(value) else "-"
-
-
-def _kv_table(rows: list[tuple[str, Any]], cls: str = "kv") -> str:
-    body = "".join(f'<tr><th class="l">{_e(k)}</th><td class="l">{_e(v)}</td></tr>' for k, v in rows)
-    return f'<table class="{cls}">{body}</table>'
-
-
 def _statistics_html(fit: Mapping[str, Any]) -> str:
     ident = fit["identifiability"]
     res = fit.get("residuals") or {}
     rows = [
         ("fit", f"{fit.get('message', '')} after {fit['iterations']} Levenberg-Marquardt steps"),
-        ("samples m (i_d and i_q)", fit["num_residuals"]),
+        ("residuals m (i_d and i_q)", fit["num_residuals"]),
         ("fitted parameters n", f"{len(fit['names'])} ({', '.join(fit['names'])})"),
         ("degrees of freedom m - n", fit.get("dof", "")),
-        ("sigma_hat", _quantity(fit["sigma_hat"], "A")),
-        ("sensor noise checked against", _noise_row(res)),
+        ("sigma_hat (the residuals' standard deviation)", quantity(fit["sigma_hat"], "A")),
+        ("sensor noise checked against", noise_row(fit)),
         ("RSS [A^2]", _fmt(fit.get("rss"))),
         ("identifiability", Identifiability.from_dict(ident).summary()),
         ("residuals white (Ljung-Box)", "-" if not res else
          f"{'yes' if res['white'] else 'NO'} (each p >= {res['whiteness_p_threshold']:.2g} required)"),
     ]
-    return _kv_table(rows, "stats")
+    return kv_table(rows, "stats")
 
 
-def _noise_row(res: Mapping[str, Any]) -> str:
-    """The noise sigma_hat was checked against and where it came from, or why the check was off."""
-    if not res:
-        return "-"
-    if res.get("sigma_stated") is None:
-        return f"none: the noise check is off ({res.get('noise_check_off') or 'no sensor noise was stated'})"
-    how = "estimated from the samples" if res.get("sigma_estimated") else "stated"
-    source = f", {res['sigma_source']}" if res.get("sigma_source") else ""
-    return f"{_quantity(res['sigma_stated'], 'A')} ({how}{source})"
-
-
-def _plan_html(plan: Mapping[str, Any] | None) -> str:
-    if not plan:
-        return "<p>No plan recorded (data from a bench file without a plan).</p>"
-
-    def volts(v):
-        if isinstance(v, list):
-            return f"sequence of {len(v)} values in [{min(v):.4g}, {max(v):.4g}]"
-        return f"{v:.6g}"
-
-    rows = "".join(
-        f'<tr><td class="l">{_e(s["name"])}</td><td>{s["duration"]:.6g}</td><td class="l">'
-        f'{"locked" if s["locked"] else "free"}</td><td class="l">{_e(volts(s["v_d"]))}</td>'
-        f'<td class="l">{_e(volts(s["v_q"]))}</td></tr>' for s in plan["segments"]
-    )
-    head = ("<tr><th class='l'>segment</th><th>duration [s]</th><th class='l'>rotor</th>"
-            "<th class='l'>v_d [V]</th><th class='l'>v_q [V]</th></tr>")
-    return (f"<p>sample rate {plan['sample_rate']:.6g} Hz, V_dc {plan['v_dc']:.6g} V, current limit "
-            f"{plan['current_limit']:.6g} A</p><table class='plan'>{head}{rows}</table>")
+#: Figures of the statistics behind the verdict, shown in the report's disclosure (the others open).
+DETAIL_FIGURES = ("convergence", "identifiability", "correlation")
 
 
 def figure_jobs(fit: Mapping[str, Any], label: str) -> list[tuple[str, tuple[str, dict[str, Any]]]]:
-    """(caption, figure job of ``report.plots``) of every figure of one fit, from the JSON alone."""
+    """(caption, figure job of ``report.plots``) of every figure of one fit, from the JSON alone: first those a
+    drive engineer reads (estimates against the prior or truth, currents, residuals, flux maps), then those
+    of :data:`DETAIL_FIGURES`."""
     from . import plots
     from ..results import Calibration
 
     cal = Calibration.from_dict(dict(fit))
     out = []
+    truth = fit.get("truth")
+    true_vec = np.array([truth[n]["true"] for n in cal.names]) if truth else None
+    against = "the truth" if truth else "the prior (the motor file's value; a bench effect's own value)"
+    out.append((f"Estimates with 95 % intervals against {against}.", plots.estimates_job(cal, truth=true_vec)))
     segments = fit.get("segments")
     if segments:
         out.append(("Excitation (top) and currents: measured (dots) and predicted by the fit (lines), per segment.",
                     plots.currents_job(segments, title=label)))
-        out.append(("Residuals per segment and axis; dashed: +-1.96 sigma_hat.",
+        out.append(("Residuals (measured minus predicted current) per segment and axis; dashed: the band that "
+                    "holds 95 % of sensor noise (+-1.96 sigma_hat).",
                     plots.residuals_job(segments, sigma_hat=fit["sigma_hat"])))
+    if fit.get("flux_maps"):
+        out.append(("Flux linkages and incremental inductances of the calibrated law with 95 % bands, over the "
+                    "currents the test reached (dotted where extrapolated).", plots.flux_maps_job(fit["flux_maps"])))
     if cal.history is not None:
         out.append(("Convergence: each fitted parameter per accepted LM step, divided by its final value.",
                     plots.convergence_job(cal)))
-    truth = fit.get("truth")
-    true_vec = np.array([truth[n]["true"] for n in cal.names]) if truth else None
-    out.append((f"Estimates with 95 % intervals, as deviation from the {'truth' if truth else 'estimate'}.",
-                plots.estimates_job(cal, truth=true_vec)))
     out.append(("Identifiability before fitting: singular-value spectrum and per-parameter sensitivity "
                 "(dead parameters marked).", plots.identifiability_job({label: cal.identifiability})))
     if len(cal.fit_names) >= 2:
         out.append(("Correlation of the fitted parameters.", plots.correlation_job(cal)))
-    if fit.get("flux_maps"):
-        out.append(("Flux linkages and incremental inductances of the calibrated law with 95 % bands, over the "
-                    "currents the test reached (dotted where extrapolated).", plots.flux_maps_job(fit["flux_maps"])))
     return out
 
 
@@ -203,20 +173,38 @@ def _figures_html(figures: list[tuple[str, bytes]]) -> str:
     )
 
 
-def fit_section_html(fit: Mapping[str, Any], label: str, anchor: str,
-                     figures: list[tuple[str, bytes]] | None = None) -> str:
-    """One fit's section: verdict first, then table, statistics, figures, plan, prior, provenance.
+def report_title(fit: Mapping[str, Any]) -> str:
+    """What a fit calibrated, for titles: ``"motor.toml from bench.csv"`` (file names), else ``""``."""
+    from pathlib import PurePath
 
-    ``figures``: (caption, PNG bytes) of the fit's :func:`figure_jobs`, when already drawn; else drawn here.
+    inp = (fit.get("input") or {}).get("path") or fit.get("source")
+    motor = fit.get("motor_file")
+    parts = [PurePath(motor).name if motor else None, PurePath(inp).name if inp else None]
+    if parts[0] and parts[1]:
+        return f"{parts[0]} from {parts[1]}"
+    return parts[1] or parts[0] or ""
+
+
+def fit_section_html(fit: Mapping[str, Any], label: str, anchor: str,
+                     figures: list[tuple[str, str, bytes]] | None = None) -> str:
+    """One fit's section, plain words first: the verdict (and specification), the result in sentences, the
+    estimates table with the prior and the change against it, the main figures, the test as run (files,
+    sample rate, delay, speed, noise, effects), the plan, every check done or skipped; then, behind a
+    disclosure, the statistics (fit statistics, convergence, identifiability, correlation, the whole prior
+    and the fixed parameters); then provenance.
+
+    ``figures``: (caption, job name, PNG bytes) of the fit's :func:`figure_jobs`, when already drawn; else
+    drawn here.
     """
     if figures is None:
         from .._figures import render
 
-        figures = [(cap, render(name, kwargs, FIG_DPI)) for cap, (name, kwargs) in figure_jobs(fit, label)]
-    figs = _figures_html(figures)
+        figures = [(cap, name, render(name, kwargs, FIG_DPI)) for cap, (name, kwargs) in figure_jobs(fit, label)]
+    main = _figures_html([(cap, png) for cap, name, png in figures if name not in DETAIL_FIGURES])
+    detail = _figures_html([(cap, png) for cap, name, png in figures if name in DETAIL_FIGURES])
     prior = fit.get("prior") or {n: p.get("prior") for n, p in fit["parameters"].items()}
-    prior_rows = [(n, _quantity(v, UNITS.get(n, "-"))) for n, v in prior.items()]
-    fixed_rows = [(n, _quantity(v, UNITS.get(n, "-"))) for n, v in fit.get("fixed", {}).items()]
+    prior_rows = [(n, quantity(v, UNITS.get(n, "-"))) for n, v in prior.items()]
+    fixed_rows = [(n, quantity(v, UNITS.get(n, "-"))) for n, v in fit.get("fixed", {}).items()]
     inp = fit.get("input") or {}
     versions = fit.get("versions") or {}
     prov = [("input SHA-256", inp.get("sha256", "-")), ("hashed", inp.get("what", "-")),
@@ -225,16 +213,25 @@ def fit_section_html(fit: Mapping[str, Any], label: str, anchor: str,
     return (
         f'<section class="fit" id="{_e(anchor)}"><h2>{_e(label)}</h2>'
         f"{verdict_html(fit)}{spec_html(fit)}"
-        f"<h3>Summary</h3>{summary_html(fit)}"
-        f"<h3>Fit statistics</h3>{_statistics_html(fit)}"
-        f"<h3>Figures</h3>{figs}"
-        f"<h3>Plan</h3>{_plan_html(fit.get('plan'))}"
+        f"<h3>The result in plain words</h3>{plain_words_html(fit)}"
+        f"<h3>Estimates against the prior</h3>{summary_html(fit)}"
+        f"<h3>Figures</h3>{main}"
+        f"<h3>The test as run</h3>{setup_html(fit)}"
+        f"<h3>Plan</h3>{plan_html(fit)}"
+        f"<h3>Checks</h3>{checks_html(fit)}"
+        f'<details class="statistics"><summary>The statistics behind the verdict</summary>'
+        f"<h3>Fit statistics</h3>{_statistics_html(fit)}{detail}"
         f"<h3>Prior (datasheet values, start of the fit)</h3>"
         f"<p>motor file: <code>{_e(fit.get('motor_file') or 'none (built-in values)')}</code></p>"
-        f"{_kv_table(prior_rows, 'prior')}"
-        f"<h3>Fixed parameters (not estimated)</h3>{_kv_table(fixed_rows, 'fixed')}"
-        f"<h3>Provenance</h3>{_kv_table(prov, 'provenance')}</section>"
+        f"{kv_table(prior_rows, 'prior')}"
+        f"<h3>Fixed parameters (not estimated)</h3>{kv_table(fixed_rows, 'fixed')}</details>"
+        f"<h3>Provenance</h3>{kv_table(prov, 'provenance')}</section>"
     )
+
+
+def _label(key: str, fit: Mapping[str, Any], multi: bool) -> str:
+    """A fit section's heading: the design's name in a document of several, else what was calibrated."""
+    return key if multi else (report_title(fit) or key)
 
 
 def render_html(result: Mapping[str, Any], *, generated: str | None = None, renderer=None) -> str:
@@ -263,11 +260,15 @@ def render_html(result: Mapping[str, Any], *, generated: str | None = None, rend
             for k, f in fits.items()
         )
         overview = f"<h2>Verdicts</h2><ul class='overview'>{items}</ul>"
-    jobs = {k: figure_jobs(f, k) for k, f in fits.items()}
+    jobs = {k: figure_jobs(f, _label(k, f, multi)) for k, f in fits.items()}
     flat = [(name, kwargs, FIG_DPI) for k in fits for _, (name, kwargs) in jobs[k]]
     pngs = iter((renderer or FigureRenderer(0)).render_all(flat))
-    sections = "".join(fit_section_html(f, k, f"fit-{k}", [(cap, next(pngs)) for cap, _ in jobs[k]])
+    sections = "".join(fit_section_html(f, k if multi else "Result", f"fit-{k}",
+                                        [(cap, name, next(pngs)) for cap, (name, _) in jobs[k]])
                        for k, f in fits.items())
+    title = "drivecal calibration report"
+    if not multi and report_title(next(iter(fits.values()))):
+        title = f"Calibration of {report_title(next(iter(fits.values())))}"
     extra = ""
     if "noise_sigma" in result and "seed" in result:
         extra = (f"<p>Synthetic bench on the Jaxonomy engine: sensor noise {result['noise_sigma']:g} A, "
@@ -275,9 +276,9 @@ def render_html(result: Mapping[str, Any], *, generated: str | None = None, rend
     return (
         "<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'>"
         "<meta name='viewport' content='width=device-width, initial-scale=1'>"
-        f"<title>drivecal calibration report</title><style>{CSS}</style></head><body>"
-        "<h1>drivecal calibration report</h1>"
-        f'<p class="stamp">generated <time id="generated">{_e(stamp)}</time></p>'
+        f"<title>{_e(title)}</title><style>{CSS}</style></head><body>"
+        f"<h1>{_e(title)}</h1>"
+        f'<p class="stamp">drivecal calibration report, generated <time id="generated">{_e(stamp)}</time></p>'
         f"{overview}{extra}{sections}</body></html>\n"
     )
 

@@ -2,7 +2,7 @@
 
 :func:`build_result` computes what a saved result needs beyond the fit itself
 (predicted currents per segment, residual checks, the unmodelled-effects
-tests, the verdict) and hands the parts to
+tests, the verdict: :func:`drivecal.diagnose.fit_diagnostics`) and hands the parts to
 :func:`drivecal.results.result_document`, the one owner of the JSON's keys.
 """
 
@@ -11,49 +11,13 @@ from __future__ import annotations
 import os
 from typing import Any
 
-import numpy as np
-
 from ..data import BenchData, Tolerance
-from ..diagnose import estimated_noise, residual_checks, unmodelled_effects, verdict
+from ..diagnose import fit_diagnostics
 from ..maps import flux_maps
-from ..model import Experiment, model_experiment, predicted_currents
+from ..model import Experiment
 from ..physics import MAGNETIC, is_saturating
 from ..plan import Plan, plan_to_dict
-from ..results import (NOT_RECORDED, Calibration, Status, bench_sha256, file_sha256, judge_spec, result_document,
-                       segment_residuals)
-
-
-
-def segment_traces(calibration: Calibration, bench: BenchData, experiment: Experiment | None = None
-                   ) -> list[dict[str, Any]]:
-    """Per segment: time, voltages, measured and predicted currents as JSON lists.
-
-    Args:
-        calibration: the fit; the prediction is at its estimate.
-        bench: the data it was fitted to.
-        experiment: the experiment the fit used (default ``bench.experiment()``).
-    """
-    if experiment is None:
-        experiment = bench.experiment(delay_samples=calibration.delay_samples)
-    experiment = model_experiment(experiment, calibration.motor, calibration.names)
-    predicted = predicted_currents(calibration.motor, experiment)
-    out, k = [], 0
-    for seg in bench.segments:
-        n = seg.num_samples
-        pred = predicted[k : k + n]
-        k += n
-        out.append({
-            "name": seg.name,
-            "locked": bool(seg.locked),
-            "t": seg.t.tolist(),
-            "v_d": seg.voltages[:, 0].tolist(),
-            "v_q": seg.voltages[:, 1].tolist(),
-            "i_d": seg.currents[:, 0].tolist(),
-            "i_q": seg.currents[:, 1].tolist(),
-            "i_d_pred": pred[:, 0].tolist(),
-            "i_q_pred": pred[:, 1].tolist(),
-        })
-    return out
+from ..results import NOT_RECORDED, Calibration, Status, bench_sha256, file_sha256, judge_spec, result_document
 
 
 def build_result(
@@ -72,6 +36,7 @@ def build_result(
     effects: Any = NOT_RECORDED,
     tolerance: dict[str, Tolerance] | None = None,
     flux_maps: Any = None,
+    speed: Any = NOT_RECORDED,
 ) -> dict[str, Any]:
     """The full result JSON of one fit (a plain, JSON-ready dict).
 
@@ -96,30 +61,22 @@ def build_result(
             result's ``spec`` section judges the estimates against it (:func:`drivecal.results.judge_spec`).
         flux_maps: the maps' section (``drivecal.maps.FluxMaps.to_dict()``) when already computed; else
             computed here over the bench's currents where the calibrated law saturates.
+        speed: what the fit made of the measured speed (``drivecal.data.SpeedChoice.to_dict()``; ``drivecal
+            fit`` records it): a speed too coarse for the exact input it was used as is named by the verdict.
     """
-    segments = segment_traces(calibration, bench, experiment)
-    if noise_sigma is not None:
-        stated, source, why_off = float(noise_sigma), noise_source, None
-    else:  # judged against the noise in the samples, or the check is off and the verdict says why
-        stated, how = estimated_noise(bench)
-        source, why_off = (how, None) if stated is not None else (None, how)
-    residuals = residual_checks(segment_residuals(segments), float(calibration.sigma_hat), stated,
-                                sigma_source=source, estimated=noise_sigma is None, noise_check_off=why_off)
-    if bool(calibration.converged):
-        used = bench.experiment(delay_samples=calibration.delay_samples) if experiment is None else experiment
-        residuals["unmodelled_effects"] = unmodelled_effects(
-            calibration.motor, calibration.fit_names, used, bench.currents, float(calibration.sigma_hat),
-            predicted=np.concatenate([np.stack([s["i_d_pred"], s["i_q_pred"]], axis=1) for s in segments]))
+    # The traces, residual checks and verdict (drivecal.diagnose.fit_diagnostics: also what drivecal.fit
+    # attaches to its Calibration); the document is assembled (keys and order) in one place.
+    segments, residuals, judged = fit_diagnostics(calibration, bench, experiment=experiment, noise_sigma=noise_sigma,
+                                                  noise_source=noise_source,
+                                                  effects=None if effects is NOT_RECORDED else effects,
+                                                  speed=None if speed is NOT_RECORDED else speed)
     fit = calibration.to_dict()
     if input_sha256 is None:
         input_sha256 = file_sha256(input_path) if input_path is not None else bench_sha256(bench)
-    # The verdict reads the fit and its residuals; the document is assembled (keys and order) in one place.
-    judged = verdict({**fit, "segments": segments, "residuals": residuals,
-                      "effects": None if effects is NOT_RECORDED else effects})
     return result_document(fit, segments=segments, residuals=residuals, verdict=judged,
                            plan=plan_to_dict(plan) if plan is not None else None, motor_file=motor_file,
                            input_sha256=input_sha256, input_path=input_path, measured_speed=measured_speed,
-                           saturation=saturation, effects=effects,
+                           saturation=saturation, effects=effects, speed=speed,
                            flux_maps=_maps_section(calibration, bench, flux_maps),
                            spec=NOT_RECORDED if not tolerance else judge_spec(
                                calibration.names, calibration.estimate, calibration.ci95, calibration.identifiable,

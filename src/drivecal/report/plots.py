@@ -62,17 +62,19 @@ def convergence_figure(calibration: "Calibration", truth: np.ndarray | None = No
 
 
 def estimates_job(calibration: "Calibration", truth: np.ndarray | None = None) -> Job:
-    """The inputs of :func:`estimates_figure`."""
+    """The inputs of :func:`estimates_figure`: against the truth when given, else against the prior (the
+    motor file's datasheet values, which a real fit has; a parameter with no prior value is shown as is)."""
     names = tuple(calibration.names)
+    prior = np.array([float(getattr(calibration.prior, n)) for n in names])
     return "estimates", {
         "names": names, "units": tuple(UNITS[n] for n in names), "estimate": np.asarray(calibration.estimate),
         "ci95": np.asarray(calibration.ci95), "identifiable": tuple(bool(x) for x in calibration.identifiable),
-        "ref": np.asarray(truth) if truth is not None else np.asarray(calibration.estimate),
-        "against_truth": truth is not None}
+        "ref": np.asarray(truth) if truth is not None else prior,
+        "reference": "truth" if truth is not None else "prior"}
 
 
 def estimates_figure(calibration: "Calibration", truth: np.ndarray | None = None):
-    """Each estimate with its 95 % interval, as a deviation (%) from the truth or the estimate."""
+    """Each estimate with its 95 % interval, as a deviation (%) from the truth or the prior."""
     return _build(estimates_job(calibration, truth))
 
 

@@ -18,7 +18,8 @@ from .._units import estimate_cells, format_quantity, format_value
 from ..identify import Identifiability
 from ..physics import ADDITIVE_SCALE, EXPONENTS, FIXED, MAGNETIC, MECHANICAL, NUISANCE, UNITS, MotorParams
 from .._status import solver_message
-from ._record import validate_fit
+from ._record import json_ready, validate_fit
+from ._verdict import Verdict
 
 
 def result_message(code: int, converged: bool) -> str:
@@ -27,6 +28,11 @@ def result_message(code: int, converged: bool) -> str:
         return "converged"
     message = solver_message(code)
     return message or "the covariance is not finite: the data does not constrain the fitted parameters"
+
+
+#: The first line of ``print(cal)`` for a fit that carries no verdict.
+NOT_JUDGED = ("[[Verdict]] not judged: drivecal.fit(bench, prior) judges its fit; for this one, "
+              "drivecal.judge_fit(cal, bench)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,6 +70,12 @@ class Calibration:
         residuals: (..., M, 2) model minus measured ``[i_d, i_q]`` (A) at the
             solver's last linearisation (the estimate is at most a final
             Gauss-Newton step of ``FitOptions.step_se`` SE from it), or None.
+        verdict: how the calibration ended (:class:`Verdict`: status, headline, details), or None where
+            it was not judged: ``drivecal.fit`` judges its fit; ``drivecal.fitting.fit`` and
+            ``fit_currents`` do not (``drivecal.judge_fit(cal, bench)`` does it afterwards).
+        diagnostics: the residual diagnostics the verdict rests on, the result JSON's ``residuals``
+            section (plain JSON data: sigma_hat against the sensor noise, whiteness per segment and
+            axis, the unmodelled-effect tests), or None where not judged.
     """
 
     names: tuple[str, ...]
@@ -87,6 +99,8 @@ class Calibration:
     history: np.ndarray | None = None
     delay_samples: float = 0.0
     residuals: np.ndarray | None = None
+    verdict: Verdict | None = None
+    diagnostics: dict[str, Any] | None = None
 
     # --- batch handling --------------------------------------------------
 
@@ -148,7 +162,10 @@ class Calibration:
         """The result JSON of a single fit (SI units; null where undefined).
 
         Carries everything :meth:`from_dict` needs to rebuild this object:
-        the full covariance with its names, the prior motor, the LM history.
+        the full covariance with its names, the prior motor, the LM history,
+        the ``verdict`` and the residual diagnostics (``residuals``; both null
+        where the fit was not judged). ``drivecal.build_result`` adds the traces
+        and provenance of a saved result.
         """
         if self.batch_shape:
             raise TypeError("to_dict() is for one fit; index the batch first")
@@ -194,6 +211,8 @@ class Calibration:
             "history": history,
             "source": self.source,
             "delay_samples": self.delay_samples,
+            "residuals": json_ready(self.diagnostics),
+            "verdict": None if self.verdict is None else self.verdict.to_dict(),
         }
 
     @classmethod
@@ -208,10 +227,10 @@ class Calibration:
             source: the file it came from, for messages.
 
         Raises:
-            DrivecalError: a field missing, null where a number is needed, of the
-                wrong type or shape, or a covariance that is not symmetric positive
-                semi-definite (``drivecal.results.validate_fit``; one sentence
-                naming ``source`` and the field).
+            DataError: a field missing, null where a number is needed, of the
+                wrong type or shape, a covariance that is not symmetric positive
+                semi-definite, or a verdict whose status is not a :class:`Status` key
+                (``drivecal.results.validate_fit``; one sentence naming ``source`` and the field).
         """
         validate_fit(d, source, sections=False)
         def arr(x):
@@ -252,6 +271,8 @@ class Calibration:
             source=d.get("source", "synthetic bench"),
             history=None if hist is None else arr(hist["values"]),
             delay_samples=float(d.get("delay_samples", 0)),
+            verdict=None if d.get("verdict") is None else Verdict.from_dict(d["verdict"], source),
+            diagnostics=json_ready(d.get("residuals")),
         )
 
     def to_pandas(self):
@@ -330,10 +351,11 @@ class Calibration:
         parts = [f"{n} = {format_quantity(float(self.estimate[i]), UNITS[n], float(self.se[i]))}"
                  if self.identifiable[i] else f"{n} = {format_quantity(float(self.estimate[i]), UNITS[n])} (prior)"
                  for i, n in enumerate(self.names)]
-        return f"Calibration({', '.join(parts)}; {self.message}; {self.source})"
+        judged = "" if self.verdict is None else f"verdict {self.verdict.status.key}; "
+        return f"Calibration({', '.join(parts)}; {self.message}; {judged}{self.source})"
 
     def __str__(self) -> str:
-        """An lmfit-style report: fit statistics, parameters, correlations, warnings."""
+        """The verdict first, then an lmfit-style report: fit statistics, parameters, correlations, warnings."""
         if self.batch_shape:
             n_ok = int(np.sum(self.converged))
             return f"Calibration batch of {len(self)} fits, {n_ok} converged"
@@ -348,7 +370,8 @@ class Calibration:
             ("RSS [A^2]", f"{float(self.rss):.6g}"),
             ("identifiability", ident.summary()),
         ]
-        lines = ["[[Fit Statistics]]"] + [f"    {k:<19}= {v}" for k, v in stat]
+        lines = self.verdict.lines() if self.verdict is not None else [NOT_JUDGED]
+        lines += ["[[Fit Statistics]]"] + [f"    {k:<19}= {v}" for k, v in stat]
         lines += ["[[Parameters]]"] + self._parameter_lines()
         lines += self._magnetic_lines()
         pairs = self.correlations(threshold=0.1)
@@ -394,6 +417,8 @@ class Calibration:
         """Jupyter: the summary table of the HTML report."""
         if self.batch_shape:
             return f"<p>{str(self)}</p>"
-        from ._html import summary_html
+        from ._html import escape, summary_html
 
-        return summary_html(self.to_dict())
+        head = "" if self.verdict is None else (f'<p class="verdict {self.verdict.status.key}"><b>'
+                                                f"{escape(self.verdict.headline)}</b></p>")
+        return head + summary_html(self.to_dict())

@@ -9,12 +9,14 @@ identifiability, fixed, ...) plus the sections :func:`result_document` adds:
   ``i_d``, ``i_q`` and predicted ``i_d_pred``, ``i_q_pred`` (A) at the estimate
   (residuals are measured - predicted);
 * ``residuals``: residual diagnostics (``drivecal.diagnose.residual_checks``);
-* ``verdict``: ``{status, headline, details}``, ``status`` a :class:`Status` key;
+* ``verdict``: ``{status, headline, details}``, ``status`` a :class:`Status` key
+  (these two are also the Calibration's own when ``drivecal.fit`` judged it:
+  ``Calibration.diagnostics`` and ``.verdict``; the document's are computed here afresh);
 * ``plan`` (or null), ``motor_file`` (path of the prior's TOML, or null);
 * ``input``: ``{sha256, what, path}``: the hash of the input file's bytes, or
   for the synthetic bench of its bench-file CSV bytes;
-* ``measured_speed``, ``saturation`` and ``drivecal_version`` when the fit
-  came from a bench file (``drivecal fit``);
+* ``measured_speed``, ``speed``, ``saturation`` and ``drivecal_version`` when
+  the fit came from a bench file (``drivecal fit``);
 * ``flux_maps`` where the calibrated law saturates: ``psi_d``, ``psi_q``, ``L_dd``,
   ``L_dq``, ``L_qq`` on a current grid with their 95 % bands (``drivecal.maps``);
 * ``versions``: drivecal, jax, jaxonomy, jaxterity, optimistix, numpy,
@@ -39,8 +41,9 @@ import numpy as np
 
 from .._version import __version__
 from ..data import BenchData
-from ..errors import DrivecalError
+from ..errors import DataError
 from ..physics import ESTIMABLE, FIXED, UNITS
+from ._checks import _Check, _key
 
 #: Default of the optional sections: the key is left out of the document (a null would be a value).
 NOT_RECORDED = object()
@@ -86,6 +89,22 @@ def bench_sha256(bench: BenchData) -> str:
     return hashlib.sha256(csv.encode()).hexdigest()
 
 
+def json_ready(x: Any) -> Any:
+    """A copy of ``x`` in plain JSON values: dicts (text keys), lists, text, booleans and numbers; NaN and
+    infinities as null (the result JSON's "undefined"), numpy scalars and arrays as Python's, tuples as lists."""
+    if isinstance(x, dict):
+        return {str(k): json_ready(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple, np.ndarray)):
+        return [json_ready(v) for v in x]
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    return x
+
+
 def segment_residuals(segments: list[dict[str, Any]]) -> list[tuple[str, np.ndarray]]:
     """``(name, measured - predicted)`` per segment, shape (N, 2) A, from the ``segments`` section."""
     return [(s["name"], np.stack([np.asarray(s["i_d"]) - np.asarray(s["i_d_pred"]),
@@ -96,7 +115,7 @@ def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], resi
                     verdict: dict[str, Any], plan: dict[str, Any] | None, motor_file: str | os.PathLike | None,
                     input_sha256: str, input_path: str | os.PathLike | None, measured_speed: Any = NOT_RECORDED,
                     saturation: Any = NOT_RECORDED, effects: Any = NOT_RECORDED, spec: Any = NOT_RECORDED,
-                    flux_maps: Any = NOT_RECORDED) -> dict[str, Any]:
+                    flux_maps: Any = NOT_RECORDED, speed: Any = NOT_RECORDED) -> dict[str, Any]:
     """One fit's full result JSON from its parts (each already JSON-ready).
 
     Args:
@@ -116,8 +135,10 @@ def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], resi
             only when the motor file has a ``[tolerance]`` table.
         flux_maps: the flux and incremental-inductance maps with their bands (``drivecal.maps.FluxMaps.to_dict()``),
             recorded where the calibrated law saturates.
+        speed: what the fit made of the measured speed and why (``drivecal.data.SpeedChoice.to_dict()``: mode,
+            requested, flagged, input_error_ratio, resolution, reason; bench files only).
     """
-    doc = dict(fit)
+    doc = {k: v for k, v in fit.items() if k not in ("residuals", "verdict")}  # a judged fit's: set below
     doc["segments"] = segments
     doc["residuals"] = residuals
     doc["verdict"] = verdict
@@ -132,6 +153,8 @@ def result_document(fit: dict[str, Any], *, segments: list[dict[str, Any]], resi
     if measured_speed is not NOT_RECORDED:
         doc["measured_speed"] = bool(measured_speed)
         doc["drivecal_version"] = __version__
+    if speed is not NOT_RECORDED:
+        doc["speed"] = speed
     if saturation is not NOT_RECORDED:
         doc["saturation"] = saturation
     if effects is not NOT_RECORDED:
@@ -159,116 +182,11 @@ def demo_document(*, noise_sigma: float, seed: int, truth: dict[str, float], ini
 
 #: The fix for a file that is not a drivecal result at all.
 RESULT_HINT = "give a result JSON written by `drivecal fit` or `drivecal demo --out DIR` (DIR/report.json)"
-#: The fix for a result with a bad field.
-_REFIT = "refit, or pass the result JSON as `drivecal fit` or `drivecal demo` wrote it"
 #: Keys every single fit holds.
 REQUIRED_FIT_KEYS = ("parameters", "names", "covariance", "sigma_hat", "converged", "identifiability",
                      "num_residuals", "iterations")
-#: Largest integer a count in a result may be (int64 and float64-exact).
-_MAX_INT = 2**53
 #: Bench-trace columns of each ``segments`` entry.
 _TRACES = ("t", "v_d", "v_q", "i_d", "i_q", "i_d_pred", "i_q_pred")
-
-
-def _what(v: Any) -> str:
-    """A JSON value's kind, in words, for messages."""
-    if v is None:
-        return "null"
-    if isinstance(v, bool):
-        return "a boolean"
-    if isinstance(v, (int, float)):
-        return "NaN" if v != v else ("infinite" if isinstance(v, float) and not math.isfinite(v) else "a number")
-    return {str: "a string", list: "a list", dict: "an object"}.get(type(v), type(v).__name__)
-
-
-def _key(k: str) -> str:
-    """A key from the file, as it can go into a one-line message."""
-    return k if k.isidentifier() and len(k) <= 40 else repr(k[:40])
-
-
-class _Check:
-    """Checks on one result document; each failure is one sentence naming ``source`` and the field."""
-
-    def __init__(self, source: str):
-        self.source = source
-
-    def fail(self, field: str, problem: str, fix: str = _REFIT) -> None:
-        raise DrivecalError(f"{self.source}: {field} {problem}; {fix}.")
-
-    def obj(self, v: Any, field: str, *, null: bool = False) -> dict | None:
-        if v is None and null:
-            return None
-        if not isinstance(v, dict):
-            self.fail(field, f"is {_what(v)}, not an object")
-        return v
-
-    def lst(self, v: Any, field: str, *, length: int | None = None, null: bool = False) -> list | None:
-        if v is None and null:
-            return None
-        if not isinstance(v, list):
-            self.fail(field, f"is {_what(v)}, not a list")
-        if length is not None and len(v) != length:
-            self.fail(field, f"has {len(v)} entries where {length} are needed")
-        return v
-
-    def num(self, v: Any, field: str, *, null: bool = True, finite: bool = False) -> float:
-        """A number (null and non-finite allowed unless told): returned as a float, NaN for null."""
-        if v is None:
-            if not null:
-                self.fail(field, "is null where a number is needed")
-            return math.nan
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            self.fail(field, f"is {_what(v)}, not a number")
-        if isinstance(v, int) and abs(v) > 1e300:
-            self.fail(field, "is too large a number")
-        x = float(v)
-        if finite and not math.isfinite(x):
-            self.fail(field, f"is {_what(v)} where a finite number is needed")
-        return x
-
-    def nums(self, v: Any, field: str, *, length: int | None = None) -> list[float]:
-        """A list of numbers or nulls."""
-        items = self.lst(v, field, length=length)
-        if all(type(x) is float or x is None for x in items):  # the common case, fast
-            return [math.nan if x is None else x for x in items]
-        return [self.num(x, f"{field}[{i}]") for i, x in enumerate(items)]
-
-    def integer(self, v: Any, field: str, lo: int = 0, hi: int = _MAX_INT) -> int:
-        if isinstance(v, bool) or not isinstance(v, int):
-            if isinstance(v, float) and v.is_integer() and lo <= v <= hi:
-                return int(v)
-            self.fail(field, f"is {_what(v)}, not a whole number")
-        if not lo <= v <= hi:
-            self.fail(field, f"is {v if abs(v) < 1e15 else 'out of range'}; it must lie in [{lo}, {hi}]")
-        return v
-
-    def boolean(self, v: Any, field: str) -> bool:
-        if not isinstance(v, bool):
-            self.fail(field, f"is {_what(v)}, not true or false")
-        return v
-
-    def string(self, v: Any, field: str, *, null: bool = False) -> str | None:
-        if v is None and null:
-            return None
-        if not isinstance(v, str):
-            self.fail(field, f"is {_what(v)}, not a string")
-        return v
-
-    def strings(self, v: Any, field: str) -> list[str]:
-        items = self.lst(v, field)
-        for i, x in enumerate(items):
-            self.string(x, f"{field}[{i}]")
-        return items
-
-    def number_map(self, v: Any, field: str) -> None:
-        """null, or an object of numbers (or nulls)."""
-        for k, x in (self.obj(v, field, null=True) or {}).items():
-            self.num(x, f"{field}.{_key(k)}")
-
-    def matrix(self, v: Any, field: str, n: int) -> np.ndarray:
-        rows = self.lst(v, field, length=n)
-        return np.array([self.nums(r, f"{field}[{i}]", length=n) for i, r in enumerate(rows)], dtype=float
-                        ).reshape(n, n)
 
 
 def check_covariance(cov: np.ndarray, names: list[str], source: str, field: str = "covariance") -> None:
@@ -309,17 +227,17 @@ def validate_fit(d: Any, source: str = "result", prefix: str = "", *, sections: 
     Accepts what drivecal writes, nulls included where a value may be undefined
     (the SE and CI of a parameter that is not identifiable, a covariance that
     is not finite); ``sections=False`` checks only what ``Calibration.from_dict``
-    reads.
+    reads (the verdict and the residual diagnostics included).
 
     Raises:
-        DrivecalError: a key missing, a value null where a number is needed, of
+        DataError: a key missing, a value null where a number is needed, of
             the wrong type or shape, or a covariance not symmetric positive
             semi-definite; one sentence naming ``source`` and the field.
     """
     c = _Check(source)
     missing = [k for k in REQUIRED_FIT_KEYS if not isinstance(d, dict) or k not in d]
     if missing:
-        raise DrivecalError(f"{source}: not a drivecal result (no '{prefix}{missing[0]}' field); {RESULT_HINT}.")
+        raise DataError(f"{source}: not a drivecal result (no '{prefix}{missing[0]}' field); {RESULT_HINT}.")
     params = c.obj(d["parameters"], f"{prefix}parameters")
     if not params:
         c.fail(f"{prefix}parameters", "is empty")
@@ -388,6 +306,16 @@ def validate_fit(d: Any, source: str = "result", prefix: str = "", *, sections: 
     delay = c.num(d.get("delay_samples", 0), f"{prefix}delay_samples", null=False, finite=True)
     if not 0 <= delay <= 100_000:
         c.fail(f"{prefix}delay_samples", f"is {delay:g}, outside 0 to 100000 samples")
+    # The verdict and the residual diagnostics: a Calibration carries them too (Calibration.verdict, .diagnostics).
+    c.verdict(d.get("verdict"), f"{prefix}verdict")
+    residuals = c.obj(d.get("residuals"), f"{prefix}residuals", null=True) or {}
+    for k in ("sigma_ratio", "sigma_stated", "sigma_hat"):
+        c.num(residuals.get(k), f"{prefix}residuals.{k}")
+    for k in ("sigma_source", "noise_check_off"):  # absent from results saved before they were recorded
+        c.string(residuals.get(k), f"{prefix}residuals.{k}", null=True)
+    effects = c.lst(residuals.get("unmodelled_effects"), f"{prefix}residuals.unmodelled_effects", null=True) or []
+    for i, e in enumerate(effects):
+        c.obj(e, f"{prefix}residuals.unmodelled_effects[{i}]")
     if sections:
         _validate_sections(c, d, prefix)
 
@@ -416,12 +344,7 @@ def _validate_identifiability(c: _Check, ident: Any, f: str) -> None:
 
 
 def _validate_sections(c: _Check, d: dict, prefix: str) -> None:
-    """What the report reads beyond the Calibration: verdict, traces, residuals, provenance."""
-    verdict = c.obj(d.get("verdict"), f"{prefix}verdict", null=True)
-    if verdict is not None:
-        c.string(verdict.get("status"), f"{prefix}verdict.status")
-        c.string(verdict.get("headline"), f"{prefix}verdict.headline")
-        c.strings(verdict.get("details"), f"{prefix}verdict.details")
+    """What the report reads beyond the Calibration: traces, provenance, effects, specification, truth."""
     for i, seg in enumerate(c.lst(d.get("segments"), f"{prefix}segments", null=True) or []):
         f = f"{prefix}segments[{i}]"
         c.obj(seg, f)
@@ -430,17 +353,9 @@ def _validate_sections(c: _Check, d: dict, prefix: str) -> None:
         length = len(c.lst(seg.get("t"), f"{f}.t"))
         for k in _TRACES:
             c.nums(seg.get(k), f"{f}.{k}", length=length)
-    residuals = c.obj(d.get("residuals"), f"{prefix}residuals", null=True) or {}
-    for k in ("sigma_ratio", "sigma_stated", "sigma_hat"):
-        c.num(residuals.get(k), f"{prefix}residuals.{k}")
-    for k in ("sigma_source", "noise_check_off"):  # absent from results saved before they were recorded
-        c.string(residuals.get(k), f"{prefix}residuals.{k}", null=True)
-    effects = c.lst(residuals.get("unmodelled_effects"), f"{prefix}residuals.unmodelled_effects", null=True) or []
-    for i, e in enumerate(effects):
-        c.obj(e, f"{prefix}residuals.unmodelled_effects[{i}]")
     c.obj(d.get("plan"), f"{prefix}plan", null=True)
     c.string(d.get("motor_file"), f"{prefix}motor_file", null=True)
-    for k in ("input", "versions", "saturation", "flux_maps"):
+    for k in ("input", "versions", "saturation", "flux_maps", "speed"):
         c.obj(d.get(k), f"{prefix}{k}", null=True)
     chosen = c.obj(d.get("effects"), f"{prefix}effects", null=True) or {}
     c.string(chosen.get("mode", "auto"), f"{prefix}effects.mode")
@@ -463,7 +378,7 @@ def validate_result(doc: Any, source: str = "result") -> None:
     """Check a result document: one fit (:func:`validate_fit`), or a demo's with one fit per design.
 
     Raises:
-        DrivecalError: one sentence naming ``source`` and the field, with the fix.
+        DataError: one sentence naming ``source`` and the field, with the fix.
     """
     if isinstance(doc, dict) and "designs" in doc:
         designs = _Check(source).obj(doc["designs"], "designs")
@@ -481,22 +396,22 @@ def load_result(path: str | os.PathLike) -> dict[str, Any]:
     """Read a saved drivecal result JSON (one fit, or a demo with ``designs``) and check it (:func:`validate_result`).
 
     Raises:
-        DrivecalError: missing file, not JSON, not a drivecal result, or a field
+        DataError: missing file, not JSON, not a drivecal result, or a field
             missing, null where a number is needed, of the wrong type or shape, or a
             covariance that is not symmetric positive semi-definite (one sentence
             naming the file and the field, with the fix).
     """
     p = Path(path)
     if not p.is_file():
-        raise DrivecalError(f"{p}: no such file; {RESULT_HINT}.")
+        raise DataError(f"{p}: no such file; {RESULT_HINT}.")
     try:
         doc = json.loads(p.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
-        raise DrivecalError(f"{p}: not a text file, so not a result JSON; {RESULT_HINT}.")
+        raise DataError(f"{p}: not a text file, so not a result JSON; {RESULT_HINT}.")
     except json.JSONDecodeError as exc:
-        raise DrivecalError(f"{p}: not valid JSON (line {exc.lineno}: {exc.msg}); {RESULT_HINT}.")
+        raise DataError(f"{p}: not valid JSON (line {exc.lineno}: {exc.msg}); {RESULT_HINT}.")
     except (RecursionError, ValueError) as exc:  # nesting too deep; an integer too long to read
-        raise DrivecalError(f"{p}: not a readable JSON document ({type(exc).__name__}); {RESULT_HINT}.")
+        raise DataError(f"{p}: not a readable JSON document ({type(exc).__name__}); {RESULT_HINT}.")
     validate_result(doc, str(p))
     return doc
 
@@ -514,5 +429,5 @@ def select_fit(doc: dict[str, Any], design: str | None, source: str = "result") 
     if design is None:
         return next(iter(fits.items()))
     if design not in fits:
-        raise DrivecalError(f"{source}: no design '{design}'; choose one of: {', '.join(fits)}.")
+        raise DataError(f"{source}: no design '{design}'; choose one of: {', '.join(fits)}.")
     return design, fits[design]
