@@ -9,6 +9,19 @@ Jacobian of a fit exists; the synthetic bench uses the same law on the engine.
 Phase quantities come from dq by the amplitude-invariant inverse Park/Clarke
 transforms at the electrical angle ``theta_e`` (``_transforms``), and the
 error goes back the same way.
+
+The PWM ripple. A leg loses its volts at its switching edges, not over the
+whole period, and it is the current *at the edge* whose sign decides: the
+rising edge of phase x sits at ``(1 - d_x) T/2`` after the carrier peak and the
+falling edge symmetrically before the next one, where the phase current is
+the sampled (period-mean) current plus and minus the ripple ``r_x``. So
+``e_x = -(v_dead/2) (s(i_x + r_x) + s(i_x - r_x))``: a phase whose current sits
+within its ripple of zero loses nothing at one edge and gains at the other,
+and its error vanishes (a dead zone of half-width ``|r_x|``), as on a real
+bridge with a phase near zero current (a locked q step, the start of a
+spin-up). ``switching_ripple`` computes ``r_x`` from the period's applied
+phase voltages, a center-aligned carrier and the inductances; with ``r = 0`` the law is
+``-v_dead * s(i_x)``. ``s`` is the smooth sign above.
 """
 
 from __future__ import annotations
@@ -20,7 +33,48 @@ import jax.numpy as jnp
 from ._transforms import abc_to_dq, dq_to_abc
 
 
-def dead_time_error(i_d: Any, i_q: Any, theta_e: Any, v_dead: Any, i_smooth: Any) -> tuple[Any, Any]:
+def switching_ripple(v_d: Any, v_q: Any, i_d: Any, i_q: Any, theta_e: Any, L_d: Any, L_q: Any, period: Any,
+                     v_dead: Any = 0.0, i_smooth: Any = 0.05) -> tuple[Any, Any, Any]:
+    """PWM current ripple of each phase at its own rising edge ``(r_a, r_b, r_c)`` (A).
+
+    A center-aligned carrier of period ``T = period`` (s) peaks at the sample
+    instant with every leg low; leg y's gate rises at ``(1 - d_y) T/2``, and its
+    pole follows ``t_dead`` later when its current is positive (the lower
+    diode holds it low until the upper switch closes). Between the peak and
+    phase x's rising edge the phase-to-neutral voltages differ from their
+    period means ``v_y``; their volt-seconds there are
+    ``S_y = T/2 (u_y - 1/3 sum_z u_z) - v_y T/4`` with
+    ``u_y = max(0, v_y - v_x - 2 v_dead s_y)`` (``V_dc t_dead = v_dead T``; ``s_y``
+    the smooth step ``(1 + tanh(i_y / i_smooth)) / 2``; the ``T/4`` takes phase
+    x's duty as 1/2). Through the inductances in the rotor frame they give the
+    phase current's deviation from its mean at the edge; the falling edge
+    sees the opposite one. A common DC link and the modulation's zero
+    sequence (SVPWM or sine) drop out: only voltage differences count.
+
+    Args:
+        v_d, v_q: applied voltage over the period (V).
+        i_d, i_q: dq currents (A).
+        theta_e: electrical rotor angle (rad).
+        L_d, L_q: inductances the ripple sees (H).
+        period: carrier (= sample) period (s).
+        v_dead: per-phase voltage lost to dead time (V).
+        i_smooth: current scale of the smooth sign (A).
+    """
+    v = dq_to_abc(v_d, v_q, theta_e)
+    late = [0.5 * (1.0 + jnp.tanh(i / i_smooth)) for i in dq_to_abc(i_d, i_q, theta_e)]
+    out = []
+    for x in range(3):
+        above = [jnp.maximum(v[y] - v[x] - 2.0 * v_dead * late[y], 0.0) if y != x else 0.0 * v[x]
+                 for y in range(3)]
+        neutral = (above[0] + above[1] + above[2]) / 3.0
+        s = [0.5 * period * (above[y] - neutral) - 0.25 * period * v[y] for y in range(3)]
+        s_d, s_q = abc_to_dq(s[0], s[1], s[2], theta_e)
+        out.append(dq_to_abc(s_d / L_d, s_q / L_q, theta_e)[x])
+    return out[0], out[1], out[2]
+
+
+def dead_time_error(i_d: Any, i_q: Any, theta_e: Any, v_dead: Any, i_smooth: Any,
+                    ripple: tuple[Any, Any, Any] | None = None) -> tuple[Any, Any]:
     """Dead-time voltage error in the rotor frame ``(e_d, e_q)`` (V).
 
     Args:
@@ -28,6 +82,14 @@ def dead_time_error(i_d: Any, i_q: Any, theta_e: Any, v_dead: Any, i_smooth: Any
         theta_e: electrical rotor angle (rad).
         v_dead: per-phase voltage lost to dead time (V), >= 0.
         i_smooth: current scale of the smooth sign (A).
+        ripple: each phase's PWM ripple at its switching edges (A), from
+            :func:`switching_ripple`; None: none (the error follows the
+            sign of the mean current).
     """
-    e_a, e_b, e_c = (-v_dead * jnp.tanh(i / i_smooth) for i in dq_to_abc(i_d, i_q, theta_e))
-    return abc_to_dq(e_a, e_b, e_c, theta_e)
+    i_abc = dq_to_abc(i_d, i_q, theta_e)
+    if ripple is None:
+        e_abc = [-v_dead * jnp.tanh(i / i_smooth) for i in i_abc]
+    else:
+        e_abc = [-0.5 * v_dead * (jnp.tanh((i + r) / i_smooth) + jnp.tanh((i - r) / i_smooth))
+                 for i, r in zip(i_abc, ripple)]
+    return abc_to_dq(e_abc[0], e_abc[1], e_abc[2], theta_e)
