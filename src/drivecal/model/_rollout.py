@@ -34,7 +34,7 @@ from ._lowered_cache import call as cached_call
 from ._scans import _scan_affine_constant, _scan_linearised_tangents, _scan_states
 from ._steps import _held, _quadratic, _rk4, _with_delay
 from ..physics import (DqCoefficients, MotorParams, dead_time_error, dq_coefficients, dq_derivatives_from,
-                       switching_ripple)
+                       stable_dead_width, switching_ripple)
 from ..physics import encoder_frame, resistance_at, sensor_offsets, with_dq_offsets
 
 
@@ -76,7 +76,7 @@ def rk4_step(
         v = v_dq
         if dead_time:
             e_d, e_q = dead_time_error(x[0], x[1], theta_e_start + motor.pole_pairs * x[3], motor.v_dead,
-                                       motor.i_dead, ripple)
+                                       stable_dead_width(motor.i_dead, motor.v_dead, motor.Ld, motor.Lq, dt), ripple)
             v = (v_dq[0] + e_d, v_dq[1] + e_q)
         d = dq_derivatives_from(c, x, v, locked)
         return conducting * d[0], conducting * d[1], (1.0 - speed_input) * d[2], d[3]

@@ -22,6 +22,18 @@ bridge with a phase near zero current (a locked q step, the start of a
 spin-up). ``switching_ripple`` computes ``r_x`` from the period's applied
 phase voltages, a center-aligned carrier and the inductances; with ``r = 0`` the law is
 ``-v_dead * s(i_x)``. ``s`` is the smooth sign above.
+
+With the ripple computed, the smooth sign's width ``i_smooth`` (the motor's
+``i_dead``, 10 mA by default) is only what is left: the switches'
+capacitance and the sampled current's chatter about an edge. It matters most
+where a phase current is held near zero for many periods (the start of a
+spin-up from a rotor angle where one phase carries no current: the current is
+clamped at the edge of its dead zone). Measured on the switching plant (default
+plan at 10 kHz, 48 V, 1 us dead time, one sample of delay; the bias of a
+noise-free fit over the standard error at 20 mA noise): the ripple with a 10 mA
+width gives R, Ld, Lq, lambda_m, delay within 0.2 SE; the same with 50 mA,
+Ld -0.73 and lambda_m +0.35 SE; the plain sign of the mean current with 50 mA,
+lambda_m -0.90 and delay -0.99 SE, and with 4 mA lambda_m -4.5 SE.
 """
 
 from __future__ import annotations
@@ -34,7 +46,7 @@ from ._transforms import abc_to_dq, dq_to_abc
 
 
 def switching_ripple(v_d: Any, v_q: Any, i_d: Any, i_q: Any, theta_e: Any, L_d: Any, L_q: Any, period: Any,
-                     v_dead: Any = 0.0, i_smooth: Any = 0.05) -> tuple[Any, Any, Any]:
+                     v_dead: Any = 0.0, i_smooth: Any = 0.01) -> tuple[Any, Any, Any]:
     """PWM current ripple of each phase at its own rising edge ``(r_a, r_b, r_c)`` (A).
 
     A center-aligned carrier of period ``T = period`` (s) peaks at the sample
@@ -71,6 +83,18 @@ def switching_ripple(v_d: Any, v_q: Any, i_d: Any, i_q: Any, theta_e: Any, L_d: 
         s_d, s_q = abc_to_dq(s[0], s[1], s[2], theta_e)
         out.append(dq_to_abc(s_d / L_d, s_q / L_q, theta_e)[x])
     return out[0], out[1], out[2]
+
+
+def stable_dead_width(i_smooth: Any, v_dead: Any, L_d: Any, L_q: Any, step: Any) -> Any:
+    """The smooth sign's width (A) an RK4 step of ``step`` (s) can integrate: ``i_smooth``, at least
+    ``v_dead * step / (2 * min(L_d, L_q))``.
+
+    The error's slope ``v_dead / i_smooth`` (V/A) over an inductance is a rate; RK4 is stable while that
+    rate times the step stays under about 2.8, and this floor keeps it under 2 with the neutral's 2/3
+    (a motor with a small inductance and a large dead-time voltage would otherwise blow up, not fit).
+    The default motor at 10 kHz with four sub-steps needs 1.9 mA: the floor does not act there.
+    """
+    return jnp.maximum(i_smooth, v_dead * step / (2.0 * jnp.minimum(L_d, L_q)))
 
 
 def dead_time_error(i_d: Any, i_q: Any, theta_e: Any, v_dead: Any, i_smooth: Any,
