@@ -104,7 +104,7 @@ def test_coverage_on_the_dead_time_bench(dead_time_clean):
     probability < 1e-3 and an interval 30 % too narrow (coverage ~0.85) inside it with < 1e-3.
     """
     seeds = 224  # >= 200, a whole number of the solver's tiles of 32 fits (memory stays that of one tile)
-    names = dc.ESTIMATED + ("delay", "v_dead", "i_dead")
+    names = dc.ESTIMATED + ("delay", "v_dead")  # i_dead held at the motor's 10 mA, as the selection holds it
     rng = np.random.default_rng(2026)
     currents = dead_time_clean.currents[None] + NOISE * rng.standard_normal((seeds,) + dead_time_clean.currents.shape)
     experiment = dead_time_clean.experiment(measured_speed=True)
