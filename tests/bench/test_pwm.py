@@ -27,7 +27,7 @@ import pytest
 import drivecal as dc
 from drivecal.bench import engine_bench, pwm_bench, simulate_segment
 from drivecal.bench._pwm import duty_cycles, period_average_pole_error, plant_derivatives
-from drivecal.physics import abc_to_dq, dead_time_error, dq_derivatives, dq_to_abc
+from drivecal.physics import abc_to_dq, dead_time_error, dq_derivatives, dq_to_abc, switching_ripple
 
 PLAN = dc.Plan((
     dc.Segment("locked d-step", 0.005, locked=True, v_d=8.0),
@@ -162,6 +162,36 @@ def test_dead_time_in_dq_is_drivecals_model(dead_run):
     t_end = DEAD_PLAN.segments[0].duration - 1.0 / DEAD_PLAN.sample_rate
     expected = 4.0 / 3.0 * V_DEAD / float(MOTOR.R) * (1.0 - np.exp(-t_end * float(MOTOR.R) / float(MOTOR.Ld)))
     assert abs(shortfall - expected) < 0.05 * expected, (shortfall, expected)
+
+
+@pytest.mark.parametrize("segment, old_rms, new_rms", [(1, 0.46, 0.05), (2, 0.33, 0.18)])
+def test_dead_time_near_zero_current_follows_the_ripple(segment, old_rms, new_rms):
+    """A phase within its PWM ripple of zero current (phase a in a locked q step, at the start of a spin-up)
+    loses its 0.48 V at one edge and not at the other: physics.switching_ripple's dead zone gives the plant's
+    per-period pole error there (RMS over the periods with |i| < 0.2 A), where the sign of the mean current
+    is wrong by about v_dead. Measured: q step 0.46 -> 0.028 V, spin-up 0.33 -> 0.15 V (the rest: currents
+    crossing zero inside a dead interval, duties away from 1/2, the currents at the period start)."""
+    plan = dc.Plan(dc.default_plan().segments, sample_rate=10_000.0, v_dc=48.0)
+    period = 1.0 / plan.sample_rate
+    run = simulate_segment(plan.segments[segment], MOTOR, plan.sample_rate, plan.v_dc, switching=True,
+                           delay_samples=1, t_dead=T_DEAD, substeps=16)
+    n = run.t.shape[0] - 1
+    applied = np.concatenate([np.zeros((1, 2)), run.commands])[:n]  # one sample of delay
+    x = run.states[:n]
+    theta_mid = float(MOTOR.pole_pairs) * (x[:, 3] + x[:, 2] * period / 2.0)  # the plant's modulation angle
+    ripple = np.stack([np.asarray(r) for r in switching_ripple(
+        applied[:, 0], applied[:, 1], x[:, 0], x[:, 1], theta_mid, float(MOTOR.Ld), float(MOTOR.Lq), period,
+        V_DEAD, 1e-9)], axis=1)
+    rise = (1.0 - run.duty[:n]) / 2.0  # the gate's rising edge, in periods after the carrier peak
+    i0, i1 = run.i_abc[:-1], run.i_abc[1:]
+    at_rise, at_fall = i0 + rise * (i1 - i0) + ripple, i0 + (1.0 - rise) * (i1 - i0) - ripple
+    law = -0.5 * V_DEAD * (np.sign(at_rise) + np.sign(at_fall))
+    mean_sign = -V_DEAD * np.sign(0.5 * (i0 + i1))
+    zone = np.abs(0.5 * (i0 + i1)) < 0.2
+    assert zone.sum() > 50
+    err = run.pole_error[:n][zone]
+    assert np.sqrt(np.mean((mean_sign[zone] - err) ** 2)) > old_rms - 0.02
+    assert np.sqrt(np.mean((law[zone] - err) ** 2)) < new_rms
 
 
 def test_duty_cycles_reach_the_references():

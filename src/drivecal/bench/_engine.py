@@ -20,6 +20,7 @@ import numpy as np
 from ..data import BenchData, SegmentData
 from ..errors import PlanError
 from ..physics import (MotorParams, coulomb_friction, dead_time_error, delayed, encoder_frame, resistance_at,
+                       switching_ripple,
                        rotor_frame, sensor_offsets)
 from ..plan import Plan, Segment
 from ._encoder import encoder_readings
@@ -52,7 +53,7 @@ def _delay_grid(delay_samples: float) -> tuple[int, int]:
 
 
 def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float,
-                 delay_samples: float = 0) -> tuple[np.ndarray, np.ndarray]:
+                 delay_samples: float = 0, pwm_rate: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Run one segment on the engine; return sample times (s) and states (N, 4).
 
     The bench effects of ``motor`` act as on a real bench: R at the segment's
@@ -64,21 +65,23 @@ def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float,
     A fractional delay (0.5, 1.5: the PWM loads its duty mid-period) runs the
     engine on a grid ``k`` times finer, each command held for ``k`` of its
     steps and applied ``delay * k`` of them late; the states are read back
-    at the sample instants.
+    at the sample instants. ``pwm_rate`` (Hz; default ``sample_rate``) is the
+    PWM carrier's, whose period sets the dead time's switching ripple.
     """
+    pwm_rate = sample_rate if pwm_rate is None else pwm_rate
     k, late = _delay_grid(delay_samples)
     if k > 1:
         fine = Segment(segment.name, segment.duration, segment.locked,
                        np.repeat(segment.voltages(sample_rate)[:, 0], k),
                        np.repeat(segment.voltages(sample_rate)[:, 1], k), temperature=segment.temperature)
-        t, states = _run_segment(fine, motor, sample_rate * k, late)
+        t, states = _run_segment(fine, motor, sample_rate * k, late, pwm_rate=sample_rate)
         return t[::k], states[::k]
     warm = motor
     if segment.temperature is not None:
         warm = motor.replace(R=float(resistance_at(motor, float(segment.temperature))))
     dead = None
     if float(motor.v_dead) != 0.0:
-        dead = (float(motor.pole_pairs), float(motor.v_dead), float(motor.i_dead))
+        dead = (float(motor.pole_pairs), float(motor.v_dead), float(motor.i_dead), 1.0 / float(pwm_rate))
     commands = segment.voltages(sample_rate)
     if float(motor.encoder_offset) != 0.0:
         commands = np.stack(rotor_frame(commands[:, 0], commands[:, 1], float(motor.encoder_offset), xp=np), axis=1)
@@ -100,14 +103,15 @@ def _pmsm_setup(motor_values: tuple, locked: bool, volts: bytes, sample_rate: fl
 
     ``motor_values``: ``(name, value)`` of every ``MotorParams`` field;
     ``volts``: the applied ``[v_d, v_q]`` (float64, shape (N, 2)) as bytes;
-    ``dead``: ``(pole_pairs, v_dead, i_dead)`` of the dead-time feedback, or None;
+    ``dead``: ``(pole_pairs, v_dead, i_dead, pwm_period)`` of the dead-time feedback, or None;
     ``friction``: ``(T_load, T_coulomb, w_coulomb)`` of the load-port feedback, or None.
     """
     import jax.numpy as jnp
 
     from ._blocks import pmsm_block
 
-    block = pmsm_block(MotorParams(**dict(motor_values)), locked=locked, name="pmsm", load_port=friction is not None)
+    block_motor = MotorParams(**dict(motor_values))
+    block = pmsm_block(block_motor, locked=locked, name="pmsm", load_port=friction is not None)
     load = None
     if friction is not None:
         t_load, t_coulomb, w_coulomb = friction
@@ -117,10 +121,14 @@ def _pmsm_setup(motor_values: tuple, locked: bool, volts: bytes, sample_rate: fl
 
     error = None
     if dead is not None:
-        pole_pairs, v_dead, i_dead = dead
+        pole_pairs, v_dead, i_dead, pwm_period = dead
 
-        def error(state):
-            return jnp.stack(dead_time_error(state[0], state[1], pole_pairs * state[3], v_dead, i_dead))
+        def error(state_and_volts):
+            state, v = state_and_volts[:4], state_and_volts[4:]
+            theta_e = pole_pairs * state[3]
+            ripple = switching_ripple(v[0], v[1], state[0], state[1], theta_e, block_motor.Ld,
+                                      block_motor.Lq, pwm_period, v_dead, i_dead)
+            return jnp.stack(dead_time_error(state[0], state[1], theta_e, v_dead, i_dead, ripple))
 
     return _held_voltage_diagram(block, np.frombuffer(volts).reshape(-1, 2), sample_rate, error, load)
 
@@ -134,7 +142,7 @@ def _held_voltage_diagram(block, voltages: np.ndarray, sample_rate: float, volta
     """
     import jax.numpy as jnp
     from jaxonomy import DiagramBuilder
-    from jaxonomy.library import Adder, FeedthroughBlock, SourceBlock, ZeroOrderHold
+    from jaxonomy.library import Adder, FeedthroughBlock, Multiplexer, SourceBlock, ZeroOrderHold
 
     _quiet_jaxonomy()
     volts = jnp.asarray(voltages)
@@ -156,7 +164,10 @@ def _held_voltage_diagram(block, voltages: np.ndarray, sample_rate: float, volta
     else:
         error = builder.add(FeedthroughBlock(voltage_error, name="inverter_error"))
         applied = builder.add(Adder(2, name="applied_voltage"))
-        builder.connect(pmsm.output_ports[0], error.input_ports[0])
+        sensed = builder.add(Multiplexer(2, name="state_and_held_voltage"))
+        builder.connect(pmsm.output_ports[0], sensed.input_ports[0])
+        builder.connect(hold.output_ports[0], sensed.input_ports[1])
+        builder.connect(sensed.output_ports[0], error.input_ports[0])
         builder.connect(hold.output_ports[0], applied.input_ports[0])
         builder.connect(error.output_ports[0], applied.input_ports[1])
         builder.connect(applied.output_ports[0], pmsm.input_ports[0])
@@ -177,10 +188,11 @@ def run_held_voltages(block, voltages: np.ndarray, sample_rate: float, *, label:
         voltages: ``[v_d, v_q]`` (V), shape (N, 2); row k acts on ``[t_k, t_k+1)``.
         sample_rate: samples per second (Hz).
         label: names the run in the error message.
-        voltage_error: optional ``f(state) -> [e_d, e_q]`` (V) added to the
-            held voltage, fed back from the block's state (an inverter's dead
-            time, for instance); the block's state output does not depend on
-            its input, so the loop is not algebraic.
+        voltage_error: optional ``f(x) -> [e_d, e_q]`` (V) added to the held
+            voltage, ``x`` the block's state followed by the held ``[v_d, v_q]``
+            (shape (6,)): an inverter's dead time with its PWM ripple, for
+            instance; the block's state output does not depend on its input,
+            so the loop is not algebraic.
 
     Returns:
         Sample times ``t_k = k / sample_rate`` (s), shape (N,), and the state at

@@ -166,7 +166,7 @@ def _print_plan(report, out, console: Console) -> None:
         elif limits.v_dead_fitted:
             console.print(f"{head}, under the margin {DEAD_TIME_MARGIN:g} x: [yellow]v_dead must be fitted[/yellow]: "
                           f"add v_dead to the motor file's estimate, with v_dead = \"{limits.v_dead:.3g} V\" and "
-                          f"i_dead = \"{limits.i_dead:.3g} A\" (the PWM current ripple); the plan holds a second "
+                          f"i_dead = \"{limits.i_dead:.3g} A\" (its transition's width); the plan holds a second "
                           "d-step current and its steps add the dead time's drop")
         else:
             console.print(f"{head}, under the margin {DEAD_TIME_MARGIN:g} x: [yellow]R reads the dead time too[/yellow]"

@@ -288,7 +288,7 @@ def auto_design(
         fs, fs_source = choose_sample_rate(tau, times.overshoot * v_spin / lam if lam else 0.0, sample_rate, ripple)
         rise, ramp_note = 0.0, ()
     v_dead = expected_dead_voltage(motor, v_dc, dead_time, fs)
-    i_dead = expected_dead_width(motor, v_dc, fs)
+    i_dead = expected_dead_width(motor, v_dead, fs)
     need = DEAD_TIME_MARGIN * v_dead
     v_d_step = _step_voltage(r, i_step, math.inf, need, v_max)
     v_q_step = _step_voltage(r, i_step, clamp_current(motor, max_torque), need, v_max)

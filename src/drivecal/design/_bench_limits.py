@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DrivecalError
-from ..physics import MotorParams, dead_time_error
+from ..physics import MotorParams, dead_time_error, stable_dead_width
 from ..plan import Plan, Segment
 
 #: Steady current of a locked step, and the current scale of the spin-up, as a fraction of the current limit.
@@ -163,16 +163,17 @@ def expected_dead_voltage(motor: MotorParams, v_dc: float, dead_time: float, sam
     return stated if stated > 0 else float(v_dc) * float(dead_time) * float(sample_rate)
 
 
-def expected_dead_width(motor: MotorParams, v_dc: float, sample_rate: float) -> float:
-    """The current width (A) of the dead time's transition through zero: the PWM's current ripple
-    ``v_dc / (8 * min(Ld, Lq) * f_s)`` (half its peak-to-peak at half duty), at least the motor's ``i_dead``.
+def expected_dead_width(motor: MotorParams, v_dead: float, sample_rate: float) -> float:
+    """The smooth sign's width (A) for the dead-time model of this motor: the motor's ``i_dead``, at least
+    what one RK4 step per sample can integrate (``physics.stable_dead_width``).
 
-    Within the ripple of zero a phase current changes sign inside the PWM period and loses only part of
-    ``v_dead``; this is the smooth sign's width (``physics.dead_time_error``) and keeps the dead-time model
-    well inside RK4's stability at one step per sample (``8 * t_dead * f_s`` times the sample rate's worth).
+    The PWM ripple's dead zone around zero current is computed from the period's voltages
+    (``physics.switching_ripple``); what is left to the smooth sign (``physics.dead_time_error``) is the
+    switches' capacitance and the sampled current's chatter about a switching edge, unless the motor's
+    small inductance and the dead-time voltage call for more to keep the model stable.
     """
-    ripple = float(v_dc) / (8.0 * min(float(motor.Ld), float(motor.Lq)) * float(sample_rate))
-    return max(float(motor.i_dead), ripple)
+    return float(stable_dead_width(float(motor.i_dead), float(v_dead), float(motor.Ld), float(motor.Lq),
+                                   1.0 / float(sample_rate)))
 
 
 def dead_time_drop(v_dead: float, i_dead: float, i_d: float, i_q: float) -> tuple[float, float]:
@@ -275,7 +276,7 @@ class BenchLimits:
         sample_rate_source: where the sample rate came from, in words.
         dead_time: dead time per switching edge assumed (s).
         v_dead: expected dead-time voltage per phase (V).
-        i_dead: the current width of its transition (A), the PWM current ripple (:func:`expected_dead_width`).
+        i_dead: the smooth sign's width of its transition (A) (:func:`expected_dead_width`).
         v_dead_fitted: the locked steps are under :data:`DEAD_TIME_MARGIN` times ``v_dead``, so the
             plan carries what identifies it (a second d-step current, steps that add the dead-time
             drop) and ``v_dead`` must be fitted.
@@ -312,8 +313,8 @@ class BenchLimits:
                 f"{ratio:.2g} times it (under {DEAD_TIME_MARGIN:g})")
         if self.v_dead_fitted:
             return (f"{head}: v_dead must be fitted (add v_dead to the motor file's estimate, with v_dead = "
-                    f"\"{self.v_dead:.3g} V\" as its prior and i_dead = \"{self.i_dead:.3g} A\", the PWM current "
-                    "ripple, as its transition); the locked steps add its drop to reach their currents, and a second "
+                    f"\"{self.v_dead:.3g} V\" as its prior and i_dead = \"{self.i_dead:.3g} A\" as its transition's "
+                    "width); the locked steps add its drop to reach their currents, and a second "
                     "d-step current tells it from R.",)
         return (f"{head}: R reads the dead time too; this plan (with saturation or mechanical parameters) does not "
                 "lay out what tells them apart.",)

@@ -141,7 +141,7 @@ def _fit_group(items: list[_Loaded], motor_file: MotorFile, measured_speed: bool
                effects: str | tuple[str, ...] = "auto") -> pd.DataFrame:
     prior, names = motor_file.motor, motor_file.names
     if isinstance(effects, tuple):  # a list of effects: fitted for every motor, as `drivecal fit` fits them
-        wanted = set(names) | {n for e in effects for n in EFFECTS[e][0] if n != "i_dead"}
+        wanted = set(names) | {n for e in effects for n in EFFECTS[e][0]}
         names = tuple(n for n in ESTIMABLE if n in wanted)
     delay = motor_file.delay_samples
     size = _bucket(len(items), chunk)

@@ -33,7 +33,8 @@ from ._flux import rollout_flux
 from ._lowered_cache import call as cached_call
 from ._scans import _scan_affine_constant, _scan_linearised_tangents, _scan_states
 from ._steps import _held, _quadratic, _rk4, _with_delay
-from ..physics import DqCoefficients, MotorParams, dead_time_error, dq_coefficients, dq_derivatives_from
+from ..physics import (DqCoefficients, MotorParams, dead_time_error, dq_coefficients, dq_derivatives_from,
+                       stable_dead_width, switching_ripple)
 from ..physics import encoder_frame, resistance_at, sensor_offsets, with_dq_offsets
 
 
@@ -50,6 +51,7 @@ def rk4_step(
     dead_time: bool = False,
     coefficients: DqCoefficients | None = None,
     conducting: Any = 1.0,
+    ripple: tuple[Any, Any, Any] | None = None,
 ) -> tuple:
     """One classical Runge-Kutta step of length ``dt`` (s) with the input held.
 
@@ -60,6 +62,8 @@ def rk4_step(
     inverter's voltage error at the stage's currents and electrical angle
     ``theta_e_start + pole_pairs * theta_m`` (rad) is added to ``v_dq``.
     ``coefficients`` are ``dq_coefficients(motor)`` when already at hand.
+    ``ripple`` (A): each phase's PWM ripple at its switching edges over this period
+    (``physics.switching_ripple``), for the dead-time error; None: none.
     Where ``conducting`` is 0 the inverter is off: the currents are held at zero
     and only the rotor moves (a coast-down).
     """
@@ -72,7 +76,7 @@ def rk4_step(
         v = v_dq
         if dead_time:
             e_d, e_q = dead_time_error(x[0], x[1], theta_e_start + motor.pole_pairs * x[3], motor.v_dead,
-                                       motor.i_dead)
+                                       stable_dead_width(motor.i_dead, motor.v_dead, motor.Ld, motor.Lq, dt), ripple)
             v = (v_dq[0] + e_d, v_dq[1] + e_q)
         d = dq_derivatives_from(c, x, v, locked)
         return conducting * d[0], conducting * d[1], (1.0 - speed_input) * d[2], d[3]
@@ -308,12 +312,16 @@ def _rollout_sequential(motor: MotorParams, experiment: Experiment, keep: int) -
             substeps = max(1, substeps // 2)
         x_next = x
         for v, a0, b0 in pieces:
+            # The ripple once per period (its voltage is held; the currents and angle at the period's start).
+            ripple = None if not experiment.dead_time else switching_ripple(
+                v[0], v[1], x[0], x[1], theta_e_start + warm.pole_pairs * x[3], warm.Ld, warm.Lq, dt, warm.v_dead,
+                warm.i_dead)
             for j in range(substeps):
                 a, b = a0 + (b0 - a0) * j / substeps, a0 + (b0 - a0) * (j + 1) / substeps
                 stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
                 x_next = rk4_step(x_next, v, warm, locked, (b - a) * dt, stages, speed_input,
                                   theta_e_start=theta_e_start, dead_time=experiment.dead_time, coefficients=c,
-                                  conducting=conducting)
+                                  conducting=conducting, ripple=ripple)
         return x_next, jnp.stack(x[:keep])
 
     inputs = (

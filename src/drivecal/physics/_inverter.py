@@ -9,6 +9,31 @@ Jacobian of a fit exists; the synthetic bench uses the same law on the engine.
 Phase quantities come from dq by the amplitude-invariant inverse Park/Clarke
 transforms at the electrical angle ``theta_e`` (``_transforms``), and the
 error goes back the same way.
+
+The PWM ripple. A leg loses its volts at its switching edges, not over the
+whole period, and it is the current *at the edge* whose sign decides: the
+rising edge of phase x sits at ``(1 - d_x) T/2`` after the carrier peak and the
+falling edge symmetrically before the next one, where the phase current is
+the sampled (period-mean) current plus and minus the ripple ``r_x``. So
+``e_x = -(v_dead/2) (s(i_x + r_x) + s(i_x - r_x))``: a phase whose current sits
+within its ripple of zero loses nothing at one edge and gains at the other,
+and its error vanishes (a dead zone of half-width ``|r_x|``), as on a real
+bridge with a phase near zero current (a locked q step, the start of a
+spin-up). ``switching_ripple`` computes ``r_x`` from the period's applied
+phase voltages, a center-aligned carrier and the inductances; with ``r = 0`` the law is
+``-v_dead * s(i_x)``. ``s`` is the smooth sign above.
+
+With the ripple computed, the smooth sign's width ``i_smooth`` (the motor's
+``i_dead``, 10 mA by default) is only what is left: the switches'
+capacitance and the sampled current's chatter about an edge. It matters most
+where a phase current is held near zero for many periods (the start of a
+spin-up from a rotor angle where one phase carries no current: the current is
+clamped at the edge of its dead zone). Measured on the switching plant (default
+plan at 10 kHz, 48 V, 1 us dead time, one sample of delay; the bias of a
+noise-free fit over the standard error at 20 mA noise): the ripple with a 10 mA
+width gives R, Ld, Lq, lambda_m, delay within 0.2 SE; the same with 50 mA,
+Ld -0.73 and lambda_m +0.35 SE; the plain sign of the mean current with 50 mA,
+lambda_m -0.90 and delay -0.99 SE, and with 4 mA lambda_m -4.5 SE.
 """
 
 from __future__ import annotations
@@ -20,7 +45,60 @@ import jax.numpy as jnp
 from ._transforms import abc_to_dq, dq_to_abc
 
 
-def dead_time_error(i_d: Any, i_q: Any, theta_e: Any, v_dead: Any, i_smooth: Any) -> tuple[Any, Any]:
+def switching_ripple(v_d: Any, v_q: Any, i_d: Any, i_q: Any, theta_e: Any, L_d: Any, L_q: Any, period: Any,
+                     v_dead: Any = 0.0, i_smooth: Any = 0.01) -> tuple[Any, Any, Any]:
+    """PWM current ripple of each phase at its own rising edge ``(r_a, r_b, r_c)`` (A).
+
+    A center-aligned carrier of period ``T = period`` (s) peaks at the sample
+    instant with every leg low; leg y's gate rises at ``(1 - d_y) T/2``, and its
+    pole follows ``t_dead`` later when its current is positive (the lower
+    diode holds it low until the upper switch closes). Between the peak and
+    phase x's rising edge the phase-to-neutral voltages differ from their
+    period means ``v_y``; their volt-seconds there are
+    ``S_y = T/2 (u_y - 1/3 sum_z u_z) - v_y T/4`` with
+    ``u_y = max(0, v_y - v_x - 2 v_dead s_y)`` (``V_dc t_dead = v_dead T``; ``s_y``
+    the smooth step ``(1 + tanh(i_y / i_smooth)) / 2``; the ``T/4`` takes phase
+    x's duty as 1/2). Through the inductances in the rotor frame they give the
+    phase current's deviation from its mean at the edge; the falling edge
+    sees the opposite one. A common DC link and the modulation's zero
+    sequence (SVPWM or sine) drop out: only voltage differences count.
+
+    Args:
+        v_d, v_q: applied voltage over the period (V).
+        i_d, i_q: dq currents (A).
+        theta_e: electrical rotor angle (rad).
+        L_d, L_q: inductances the ripple sees (H).
+        period: carrier (= sample) period (s).
+        v_dead: per-phase voltage lost to dead time (V).
+        i_smooth: current scale of the smooth sign (A).
+    """
+    v = dq_to_abc(v_d, v_q, theta_e)
+    late = [0.5 * (1.0 + jnp.tanh(i / i_smooth)) for i in dq_to_abc(i_d, i_q, theta_e)]
+    out = []
+    for x in range(3):
+        above = [jnp.maximum(v[y] - v[x] - 2.0 * v_dead * late[y], 0.0) if y != x else 0.0 * v[x]
+                 for y in range(3)]
+        neutral = (above[0] + above[1] + above[2]) / 3.0
+        s = [0.5 * period * (above[y] - neutral) - 0.25 * period * v[y] for y in range(3)]
+        s_d, s_q = abc_to_dq(s[0], s[1], s[2], theta_e)
+        out.append(dq_to_abc(s_d / L_d, s_q / L_q, theta_e)[x])
+    return out[0], out[1], out[2]
+
+
+def stable_dead_width(i_smooth: Any, v_dead: Any, L_d: Any, L_q: Any, step: Any) -> Any:
+    """The smooth sign's width (A) an RK4 step of ``step`` (s) can integrate: ``i_smooth``, at least
+    ``v_dead * step / (2 * min(L_d, L_q))``.
+
+    The error's slope ``v_dead / i_smooth`` (V/A) over an inductance is a rate; RK4 is stable while that
+    rate times the step stays under about 2.8, and this floor keeps it under 2 with the neutral's 2/3
+    (a motor with a small inductance and a large dead-time voltage would otherwise blow up, not fit).
+    The default motor at 10 kHz with four sub-steps needs 1.9 mA: the floor does not act there.
+    """
+    return jnp.maximum(i_smooth, v_dead * step / (2.0 * jnp.minimum(L_d, L_q)))
+
+
+def dead_time_error(i_d: Any, i_q: Any, theta_e: Any, v_dead: Any, i_smooth: Any,
+                    ripple: tuple[Any, Any, Any] | None = None) -> tuple[Any, Any]:
     """Dead-time voltage error in the rotor frame ``(e_d, e_q)`` (V).
 
     Args:
@@ -28,6 +106,14 @@ def dead_time_error(i_d: Any, i_q: Any, theta_e: Any, v_dead: Any, i_smooth: Any
         theta_e: electrical rotor angle (rad).
         v_dead: per-phase voltage lost to dead time (V), >= 0.
         i_smooth: current scale of the smooth sign (A).
+        ripple: each phase's PWM ripple at its switching edges (A), from
+            :func:`switching_ripple`; None: none (the error follows the
+            sign of the mean current).
     """
-    e_a, e_b, e_c = (-v_dead * jnp.tanh(i / i_smooth) for i in dq_to_abc(i_d, i_q, theta_e))
-    return abc_to_dq(e_a, e_b, e_c, theta_e)
+    i_abc = dq_to_abc(i_d, i_q, theta_e)
+    if ripple is None:
+        e_abc = [-v_dead * jnp.tanh(i / i_smooth) for i in i_abc]
+    else:
+        e_abc = [-0.5 * v_dead * (jnp.tanh((i + r) / i_smooth) + jnp.tanh((i - r) / i_smooth))
+                 for i, r in zip(i_abc, ripple)]
+    return abc_to_dq(e_abc[0], e_abc[1], e_abc[2], theta_e)

@@ -157,8 +157,10 @@ class MotorParams(eqx.Module):
         v_dead: inverter voltage error (V) each phase loses against its
             current's direction: dead time plus the devices' forward drop
             (see ``_inverter.py``); 0 for an ideal inverter.
-        i_dead: current width (A) of the dead-time error's transition through
-            zero current (the PWM ripple and the switches' capacitance).
+        i_dead: current width (A) of the smooth sign in the dead-time error
+            (the switches' capacitance, and the sampled current's chatter
+            about a switching edge); the PWM ripple's dead zone around zero
+            current is computed from the period's voltages (``_inverter.py``).
         offset_d, offset_q: current-sensor offsets (A) seen on i_d and i_q.
         offset_a, offset_b: phase current-sensor offsets (A) of a phase (abc)
             bench file; they reach dq rotated by the rotor angle.
@@ -195,7 +197,7 @@ class MotorParams(eqx.Module):
     w_coulomb: Any = 1.0
     delay: Any = 0.0
     v_dead: Any = 0.0
-    i_dead: Any = 0.05
+    i_dead: Any = 0.01
     offset_d: Any = 0.0
     offset_q: Any = 0.0
     offset_a: Any = 0.0
