@@ -42,8 +42,8 @@ ALPHA = 1e-3
 #: Bench effects: name -> (parameters a fit adds, parameters the score test probes, plain-language signature).
 #: The dead time adds v_dead only: its transition is the PWM ripple the model computes, and the smooth sign's
 #: width i_dead is held at the motor's (10 mA by default). Fitted, the width falls toward zero (the data want
-#: the sharp edge of the ripple's dead zone) and the fit stops converging (78 % of 32 noise seeds on the
-#: switching plant); held at 10 mA, every seed converges in 7-16 steps with z spreads of 0.87-1.01.
+#: the sharp edge of the ripple's dead zone) and 22 % of 32 noise seeds on the switching plant stop at the
+#: step limit; held at 10 mA, every seed converges in 7-16 steps with z spreads of 0.87-1.01.
 EFFECTS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
     "delay": (("delay",), ("delay",), "a PWM/computation delay other than the one assumed"),
     "dead_time": (("v_dead",), ("v_dead",),
