@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._experiment import Experiment, chain_starts
-from ._steps import _quadratic, _rk4, _with_delay
+from ._steps import _quadratic, _rk4, _substeps, _with_delay
 from ..physics import (MotorParams, currents_of_flux, dead_time_error, flux_derivatives, flux_of_currents,
                        stable_dead_width, switching_ripple)
 from ..physics import resistance_at
@@ -60,18 +60,22 @@ def rollout_flux(motor: MotorParams, experiment: Experiment, keep: int, conducti
             return f
 
         pieces = ((v_dq, 0.0, 1.0),) if before is None else ((v_earlier, 0.0, fraction), (v_dq, fraction, 1.0))
-        x_next = x
-        i_d0, i_q0 = currents_of_flux(x[0], x[1], motor)
-        for v, a0, b0 in pieces[:pieces_per_sample]:
+        def advance(x, v, a, b, ripple):
+            stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
+            width = stable_dead_width(motor.i_dead, motor.v_dead, motor.Ld, motor.Lq, (b - a) * dt)
+            return _rk4(f_with((v[0], v[1]), ripple, width), x, (b - a) * dt, stages)
+
+        if experiment.dead_time:
             # The ripple once per period (its voltage is held; the currents and angle at the period's start).
-            ripple = None if not experiment.dead_time else switching_ripple(
-                v[0], v[1], i_d0, i_q0, theta_e_start + motor.pole_pairs * x[3], motor.Ld, motor.Lq, dt,
-                motor.v_dead, motor.i_dead)
-            for j in range(substeps):
-                a, b = a0 + (b0 - a0) * j / substeps, a0 + (b0 - a0) * (j + 1) / substeps
-                stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
-                width = stable_dead_width(motor.i_dead, motor.v_dead, motor.Ld, motor.Lq, (b - a) * dt)
-                x_next = _rk4(f_with((v[0], v[1]), ripple, width), x_next, (b - a) * dt, stages)
+            i_d0, i_q0 = currents_of_flux(x[0], x[1], motor)
+            x_next = _substeps(advance, x, tuple(
+                (v, a0, b0, switching_ripple(v[0], v[1], i_d0, i_q0, theta_e_start + motor.pole_pairs * x[3],
+                                             motor.Ld, motor.Lq, dt, motor.v_dead, motor.i_dead))
+                for v, a0, b0 in pieces[:pieces_per_sample]), substeps)
+        else:
+            x_next = x
+            for v, a0, b0 in pieces[:pieces_per_sample]:
+                x_next = advance(x_next, v, a0, b0, None)
         x_next = (x_next[0], x_next[1], jnp.where(speed_input > 0, speed[2], x_next[2]), x_next[3])
         i_d, i_q = currents_of_flux(x[0], x[1], motor)
         return x_next, jnp.stack((on * i_d, on * i_q, x[2], x[3])[:keep])

@@ -32,7 +32,7 @@ from ._experiment import Experiment, chain_starts, in_rotor_frame
 from ._flux import rollout_flux
 from ._lowered_cache import call as cached_call
 from ._scans import _scan_affine_constant, _scan_linearised_tangents, _scan_states
-from ._steps import _held, _quadratic, _rk4, _with_delay
+from ._steps import _held, _quadratic, _rk4, _substeps, _with_delay
 from ..physics import (DqCoefficients, MotorParams, dead_time_error, dq_coefficients, dq_derivatives_from,
                        stable_dead_width, switching_ripple)
 from ..physics import encoder_frame, resistance_at, sensor_offsets, with_dq_offsets
@@ -310,18 +310,21 @@ def _rollout_sequential(motor: MotorParams, experiment: Experiment, keep: int) -
         pieces = ((v_dq, 0.0, 1.0),) if before is None else ((v_earlier, 0.0, fraction), (v_dq, fraction, 1.0))
         if before is not None:
             substeps = max(1, substeps // 2)
-        x_next = x
-        for v, a0, b0 in pieces:
-            # The ripple once per period (its voltage is held; the currents and angle at the period's start).
-            ripple = None if not experiment.dead_time else switching_ripple(
-                v[0], v[1], x[0], x[1], theta_e_start + warm.pole_pairs * x[3], warm.Ld, warm.Lq, dt, warm.v_dead,
-                warm.i_dead)
-            for j in range(substeps):
-                a, b = a0 + (b0 - a0) * j / substeps, a0 + (b0 - a0) * (j + 1) / substeps
-                stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
-                x_next = rk4_step(x_next, v, warm, locked, (b - a) * dt, stages, speed_input,
-                                  theta_e_start=theta_e_start, dead_time=experiment.dead_time, coefficients=c,
-                                  conducting=conducting, ripple=ripple)
+
+        def advance(x, v, a, b, ripple):
+            stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
+            return rk4_step(x, v, warm, locked, (b - a) * dt, stages, speed_input, theta_e_start=theta_e_start,
+                            dead_time=experiment.dead_time, coefficients=c, conducting=conducting, ripple=ripple)
+
+        if not experiment.dead_time:
+            x_next = x
+            for v, a0, b0 in pieces:
+                x_next = advance(x_next, v, a0, b0, None)
+            return x_next, jnp.stack(x[:keep])
+        # The ripple once per period (its voltage is held; the currents and angle at the period's start).
+        x_next = _substeps(advance, x, tuple(
+            (v, a0, b0, switching_ripple(v[0], v[1], x[0], x[1], theta_e_start + warm.pole_pairs * x[3], warm.Ld,
+                                         warm.Lq, dt, warm.v_dead, warm.i_dead)) for v, a0, b0 in pieces), substeps)
         return x_next, jnp.stack(x[:keep])
 
     inputs = (

@@ -42,7 +42,7 @@ from typing import Any
 
 import jax.numpy as jnp
 
-from ._transforms import abc_to_dq, dq_to_abc
+from ._transforms import abc_to_dq, clarke, dq_to_abc, inverse_clarke, inverse_park
 
 
 def switching_ripple(v_d: Any, v_q: Any, i_d: Any, i_q: Any, theta_e: Any, L_d: Any, L_q: Any, period: Any,
@@ -72,16 +72,25 @@ def switching_ripple(v_d: Any, v_q: Any, i_d: Any, i_q: Any, theta_e: Any, L_d: 
         v_dead: per-phase voltage lost to dead time (V).
         i_smooth: current scale of the smooth sign (A).
     """
-    v = dq_to_abc(v_d, v_q, theta_e)
-    late = [0.5 * (1.0 + jnp.tanh(i / i_smooth)) for i in dq_to_abc(i_d, i_q, theta_e)]
+    # Linear in the volt-seconds: phase x's deviation is row x of inverse_clarke . G . clarke applied to S,
+    # with G the rotor frame's inverse inductance turned into the stator (alpha, beta) frame. A common
+    # part of S (the neutral) drops out in clarke, so only the u_y above phase x and the means v_y count.
+    c, s = jnp.cos(theta_e), jnp.sin(theta_e)
+    g_d, g_q = 1.0 / L_d, 1.0 / L_q
+    g_aa, g_bb, g_ab = c * c * g_d + s * s * g_q, s * s * g_d + c * c * g_q, c * s * (g_d - g_q)
+
+    def deviation(a: Any, b: Any, cc: Any) -> tuple[Any, Any, Any]:
+        alpha, beta = clarke(a, b, cc)
+        return inverse_clarke(g_aa * alpha + g_ab * beta, g_ab * alpha + g_bb * beta)
+
+    v = inverse_clarke(*inverse_park(v_d, v_q, theta_e))
+    late = [0.5 * (1.0 + jnp.tanh(i / i_smooth)) for i in inverse_clarke(*inverse_park(i_d, i_q, theta_e))]
+    mean = deviation(*v)
     out = []
     for x in range(3):
-        above = [jnp.maximum(v[y] - v[x] - 2.0 * v_dead * late[y], 0.0) if y != x else 0.0 * v[x]
+        above = [jnp.maximum(v[y] - v[x] - 2.0 * v_dead * late[y], 0.0) if y != x else jnp.zeros_like(v[x])
                  for y in range(3)]
-        neutral = (above[0] + above[1] + above[2]) / 3.0
-        s = [0.5 * period * (above[y] - neutral) - 0.25 * period * v[y] for y in range(3)]
-        s_d, s_q = abc_to_dq(s[0], s[1], s[2], theta_e)
-        out.append(dq_to_abc(s_d / L_d, s_q / L_q, theta_e)[x])
+        out.append(0.5 * period * deviation(*above)[x] - 0.25 * period * mean[x])
     return out[0], out[1], out[2]
 
 
