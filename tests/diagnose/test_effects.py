@@ -55,9 +55,10 @@ def test_forward_model_matches_engine_with_effects(effects_clean, effects_truth)
     experiment = model_experiment(effects_clean.experiment(measured_speed=False, delay_samples=DELAY), effects_truth,
                                   WITH_EFFECTS)
     error = np.abs(np.asarray(predict_currents(effects_truth, experiment)) - effects_clean.currents)
-    # The smooth sign turns within one sample period at a step's start: one RK4 step per sample errs by
-    # 3e-5 A there, the dead-time model's four sub-steps by 2e-7 A.
-    assert error.max() < 1e-6
+    # The smooth sign (10 mA) and the ripple's dead zone turn within one sample period where a phase current
+    # crosses zero: the dead-time model's four RK4 sub-steps err by 2.7e-6 A there against the engine's
+    # adaptive solver (one step per sample: 6e-5 A). The bound is 5e-4 of the 20 mA noise: no fit sees it.
+    assert error.max() < 1e-5
 
 
 def test_forward_model_matches_engine_offsets_delay_temperature(truth):

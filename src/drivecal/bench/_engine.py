@@ -19,8 +19,7 @@ import numpy as np
 
 from ..data import BenchData, SegmentData
 from ..errors import PlanError
-from ..physics import (MotorParams, coulomb_friction, dead_time_error, delayed, encoder_frame, resistance_at,
-                       switching_ripple,
+from ..physics import (MotorParams, bridge_error, coulomb_friction, delayed, encoder_frame, resistance_at,
                        rotor_frame, sensor_offsets)
 from ..plan import Plan, Segment
 from ._encoder import encoder_readings
@@ -126,9 +125,8 @@ def _pmsm_setup(motor_values: tuple, locked: bool, volts: bytes, sample_rate: fl
         def error(state_and_volts):
             state, v = state_and_volts[:4], state_and_volts[4:]
             theta_e = pole_pairs * state[3]
-            ripple = switching_ripple(v[0], v[1], state[0], state[1], theta_e, block_motor.Ld,
-                                      block_motor.Lq, pwm_period, v_dead, i_dead)
-            return jnp.stack(dead_time_error(state[0], state[1], theta_e, v_dead, i_dead, ripple))
+            return jnp.stack(bridge_error(v[0], v[1], state[0], state[1], theta_e, block_motor.Ld, block_motor.Lq,
+                                          pwm_period, v_dead, i_dead))
 
     return _held_voltage_diagram(block, np.frombuffer(volts).reshape(-1, 2), sample_rate, error, load)
 

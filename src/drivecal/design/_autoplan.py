@@ -15,8 +15,8 @@ segments — locked d-step (R, Ld), locked q-step (Lq), free spin-up (lambda_m) 
   ``v_dc * t_dead * f_s`` is raised to it where the current margin allows; where not, v_dead must
   be fitted: the plan gains a second d-step at :data:`DEAD_TIME_SECOND_LEVEL` of the current (the
   dead-time voltage is the same at both currents, R's drop is not), every locked step adds the
-  dead time's drop to reach its current, and the plan is judged with v_dead estimated (the report's
-  ``limits`` and notes say so);
+  dead time's drop to reach its current, the spin-up the voltage the dead time takes from it where
+  that matters (``_spin_dead_time``), and the plan is judged with v_dead estimated (notes, ``limits``);
 * **durations** from the time constants: :data:`LOCKED_TIME_CONSTANTS` ``L/R`` per locked step,
   :data:`SPIN_TIME_CONSTANTS` spin-up times (the mechanical time constant
   ``tm = J*R / (1.5 p^2 lambda_m^2)``, or ``sqrt(tm * Lq/R)``, a quarter period of the
@@ -43,16 +43,14 @@ the current limit, and combined d+q steps for the cross-saturation. A motor with
 there, and there is no back-EMF to show); it can then estimate neither lambda_m nor the mechanics.
 These plans report the dead-time margin but do not lay out what identifies v_dead.
 
-The plan is then judged by :func:`drivecal.design.assess_design` on the
-nominal motor, for the requested parameters (with its saturating law where it has one); a segment
-whose predicted peak current, speed or clamp torque breaks a limit is scaled down and the plan judged
-again. When
-the motor is linear (its saturation unknown), the free segments are then held to a current a motor
-whose inductances have fallen to half would keep under the limit (``_saturation_plan``; stated in
-the report's notes). It binds where the inductance holds the spin-up's current down (slow electrical,
-fast mechanical time constants, a spin-up boosted past a locked step's voltage); on the seed motor's
-plans it does not bind. When no feasible, identifiable plan
-exists, :class:`~drivecal.errors.DrivecalError` says why in one sentence.
+The plan is then judged by :func:`drivecal.design.assess_design` on the nominal motor, for the requested
+parameters (with its saturating law where it has one); a segment whose predicted peak current, speed or
+clamp torque breaks a limit is scaled down and the plan judged again. When the motor is linear (its
+saturation unknown), the free segments are then held to a current a motor whose inductances have fallen
+to half would keep under the limit (``_saturation_plan``; stated in the report's notes). It binds where
+the inductance holds the spin-up's current down (slow electrical, fast mechanical time constants, a
+spin-up boosted past a locked step's voltage); on the seed motor's plans it does not bind. When no
+feasible, identifiable plan exists, :class:`~drivecal.errors.DrivecalError` says why in one sentence.
 """
 
 from __future__ import annotations
@@ -60,8 +58,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from ._assess import MAX_ELECTRICAL_STEP as _DESIGN_MAX_STEP
-from ._assess import DesignReport, assess_design, predict_segments
+from ._assess import MAX_ELECTRICAL_STEP as _DESIGN_MAX_STEP, DesignReport, assess_design, predict_segments
 from ._bench_limits import (CURRENT_MARGIN, DEAD_TIME_MARGIN, DEFAULT_DEAD_TIME, LOCKED_TIME_CONSTANTS,
                             MAX_RAMP_SAMPLES, MIN_LOCKED_TIME_CONSTANTS, MIN_SAMPLES_PER_TIME_CONSTANT,
                             MIN_SEGMENT_SAMPLES, MIN_SPIN_TIME_CONSTANTS, PLAN_MAX_ELECTRICAL_STEP, SAMPLE_RATES,
@@ -72,6 +69,7 @@ from ._bench_limits import (CURRENT_MARGIN, DEAD_TIME_MARGIN, DEFAULT_DEAD_TIME,
 from ._mechanical import SETTLE_SPIN_TIMES, friction_samples, mechanical_requested, mechanical_segments, run_voltages
 from ._saturation_plan import (SATURATION_TOP_FRACTION, LockedStep, margin_note, saturation_requested,
                                saturation_steps, weakened, with_saturation_steps)
+from ._spin_dead_time import spin_through_dead_time
 from .._stats import next_power_of_two
 from ..errors import DrivecalError
 from ..physics import ESTIMABLE, ESTIMATED, MotorParams, is_saturating
@@ -108,8 +106,7 @@ def _bucket(n: int) -> int:
 def _spread(counts: list[int], total: int) -> list[int]:
     """``counts`` scaled to sum to ``total`` (rounding absorbed by the longest)."""
     scaled = [int(math.floor(c * total / sum(counts))) for c in counts]
-    i = max(range(len(counts)), key=lambda j: counts[j])
-    scaled[i] += total - sum(scaled)
+    scaled[max(range(len(counts)), key=lambda j: counts[j])] += total - sum(scaled)
     return scaled
 
 
@@ -376,6 +373,10 @@ def auto_design(
         notes = report.notes
         if fit_dead:
             final = judge(levels, final=True)
+            if final.ok and levels.v_spin:
+                final, levels, spin_note = spin_through_dead_time(report, final, levels, judge, dead_motor,
+                                                                  current_limit)
+                ramp_note += spin_note
             if not final.ok:
                 raise DrivecalError(f"the expected dead-time voltage {v_dead:.3g} V is above a tenth of the locked "
                                     f"steps' and this plan cannot tell it from R ({final.identifiability.summary()});"

@@ -19,8 +19,8 @@ import numpy as np
 
 from ._experiment import Experiment, chain_starts
 from ._steps import _quadratic, _rk4, _substeps, _with_delay
-from ..physics import (MotorParams, currents_of_flux, dead_time_error, flux_derivatives, flux_of_currents,
-                       stable_dead_width, switching_ripple)
+from ..physics import (MotorParams, bridge_error, currents_of_flux, flux_derivatives, flux_of_currents,
+                       stable_dead_width)
 from ..physics import resistance_at
 
 
@@ -46,36 +46,26 @@ def rollout_flux(motor: MotorParams, experiment: Experiment, keep: int, conducti
         x = (jnp.where(on > 0, x[0], motor.lambda_m), on * x[1], x[2], x[3])
         r = resistance_at(motor, temperature) if experiment.thermal else None
 
-        def f_with(v, ripple, width):
+        def f_with(v, width):
             def f(state, w_measured):
                 state = (state[0], state[1], jnp.where(speed_input > 0, w_measured, state[2]), state[3])
                 applied = v
                 if experiment.dead_time:
                     i_d, i_q = currents_of_flux(state[0], state[1], motor)
-                    e_d, e_q = dead_time_error(i_d, i_q, theta_e_start + motor.pole_pairs * state[3], motor.v_dead,
-                                               width, ripple)
+                    e_d, e_q = bridge_error(v[0], v[1], i_d, i_q, theta_e_start + motor.pole_pairs * state[3],
+                                            motor.Ld, motor.Lq, dt, motor.v_dead, motor.i_dead, width)
                     applied = (v[0] + e_d, v[1] + e_q)
                 d, _ = flux_derivatives(state, applied, motor, locked, resistance=r)
                 return on * d[0], on * d[1], (1.0 - speed_input) * d[2], d[3]
             return f
 
         pieces = ((v_dq, 0.0, 1.0),) if before is None else ((v_earlier, 0.0, fraction), (v_dq, fraction, 1.0))
-        def advance(x, v, a, b, ripple):
+        def advance(x, v, a, b):
             stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
             width = stable_dead_width(motor.i_dead, motor.v_dead, motor.Ld, motor.Lq, (b - a) * dt)
-            return _rk4(f_with((v[0], v[1]), ripple, width), x, (b - a) * dt, stages)
+            return _rk4(f_with((v[0], v[1]), width), x, (b - a) * dt, stages)
 
-        if experiment.dead_time:
-            # The ripple once per period (its voltage is held; the currents and angle at the period's start).
-            i_d0, i_q0 = currents_of_flux(x[0], x[1], motor)
-            x_next = _substeps(advance, x, tuple(
-                (v, a0, b0, switching_ripple(v[0], v[1], i_d0, i_q0, theta_e_start + motor.pole_pairs * x[3],
-                                             motor.Ld, motor.Lq, dt, motor.v_dead, motor.i_dead))
-                for v, a0, b0 in pieces[:pieces_per_sample]), substeps)
-        else:
-            x_next = x
-            for v, a0, b0 in pieces[:pieces_per_sample]:
-                x_next = advance(x_next, v, a0, b0, None)
+        x_next = _substeps(advance, x, pieces[:pieces_per_sample], substeps)
         x_next = (x_next[0], x_next[1], jnp.where(speed_input > 0, speed[2], x_next[2]), x_next[3])
         i_d, i_q = currents_of_flux(x[0], x[1], motor)
         return x_next, jnp.stack((on * i_d, on * i_q, x[2], x[3])[:keep])

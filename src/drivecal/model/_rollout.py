@@ -33,8 +33,8 @@ from ._flux import rollout_flux
 from ._lowered_cache import call as cached_call
 from ._scans import _scan_affine_constant, _scan_linearised_tangents, _scan_states
 from ._steps import _held, _quadratic, _rk4, _substeps, _with_delay
-from ..physics import (DqCoefficients, MotorParams, dead_time_error, dq_coefficients, dq_derivatives_from,
-                       stable_dead_width, switching_ripple)
+from ..physics import (DqCoefficients, MotorParams, bridge_error, dq_coefficients, dq_derivatives_from,
+                       stable_dead_width)
 from ..physics import encoder_frame, resistance_at, sensor_offsets, with_dq_offsets
 
 
@@ -51,7 +51,7 @@ def rk4_step(
     dead_time: bool = False,
     coefficients: DqCoefficients | None = None,
     conducting: Any = 1.0,
-    ripple: tuple[Any, Any, Any] | None = None,
+    period: Any = None,
 ) -> tuple:
     """One classical Runge-Kutta step of length ``dt`` (s) with the input held.
 
@@ -62,8 +62,7 @@ def rk4_step(
     inverter's voltage error at the stage's currents and electrical angle
     ``theta_e_start + pole_pairs * theta_m`` (rad) is added to ``v_dq``.
     ``coefficients`` are ``dq_coefficients(motor)`` when already at hand.
-    ``ripple`` (A): each phase's PWM ripple at its switching edges over this period
-    (``physics.switching_ripple``), for the dead-time error; None: none.
+    ``period`` (s): the PWM carrier period, for the dead-time error's ripple (``physics.bridge_error``).
     Where ``conducting`` is 0 the inverter is off: the currents are held at zero
     and only the rotor moves (a coast-down).
     """
@@ -75,8 +74,9 @@ def rk4_step(
         x = (conducting * x[0], conducting * x[1], jnp.where(speed_input > 0, w_measured, x[2]), x[3])
         v = v_dq
         if dead_time:
-            e_d, e_q = dead_time_error(x[0], x[1], theta_e_start + motor.pole_pairs * x[3], motor.v_dead,
-                                       stable_dead_width(motor.i_dead, motor.v_dead, motor.Ld, motor.Lq, dt), ripple)
+            e_d, e_q = bridge_error(v_dq[0], v_dq[1], x[0], x[1], theta_e_start + motor.pole_pairs * x[3], motor.Ld,
+                                    motor.Lq, period, motor.v_dead, motor.i_dead,
+                                    stable_dead_width(motor.i_dead, motor.v_dead, motor.Ld, motor.Lq, dt))
             v = (v_dq[0] + e_d, v_dq[1] + e_q)
         d = dq_derivatives_from(c, x, v, locked)
         return conducting * d[0], conducting * d[1], (1.0 - speed_input) * d[2], d[3]
@@ -311,21 +311,12 @@ def _rollout_sequential(motor: MotorParams, experiment: Experiment, keep: int) -
         if before is not None:
             substeps = max(1, substeps // 2)
 
-        def advance(x, v, a, b, ripple):
+        def advance(x, v, a, b):
             stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
             return rk4_step(x, v, warm, locked, (b - a) * dt, stages, speed_input, theta_e_start=theta_e_start,
-                            dead_time=experiment.dead_time, coefficients=c, conducting=conducting, ripple=ripple)
+                            dead_time=experiment.dead_time, coefficients=c, conducting=conducting, period=dt)
 
-        if not experiment.dead_time:
-            x_next = x
-            for v, a0, b0 in pieces:
-                x_next = advance(x_next, v, a0, b0, None)
-            return x_next, jnp.stack(x[:keep])
-        # The ripple once per period (its voltage is held; the currents and angle at the period's start).
-        x_next = _substeps(advance, x, tuple(
-            (v, a0, b0, switching_ripple(v[0], v[1], x[0], x[1], theta_e_start + warm.pole_pairs * x[3], warm.Ld,
-                                         warm.Lq, dt, warm.v_dead, warm.i_dead)) for v, a0, b0 in pieces), substeps)
-        return x_next, jnp.stack(x[:keep])
+        return _substeps(advance, x, pieces, substeps), jnp.stack(x[:keep])
 
     inputs = (
         experiment.voltages,

@@ -2,7 +2,7 @@
 voltage error and delay, the magnetic saturation (flux linkages as states), the current sensors' offsets, the encoder's offset."""
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
-from ._inverter import dead_time_error, stable_dead_width, switching_ripple
+from ._inverter import bridge_error, dead_time_error, stable_dead_width, switching_ripple
 from ._magnetics import (EXPONENT_CANDIDATES, EXPONENTS, MAGNETIC, currents_of_flux, flux_derivatives,
                          flux_of_currents, from_hinkkanen, hinkkanen_coefficients, hinkkanen_law,
                          incremental_inductances,
@@ -18,7 +18,7 @@ __all__ = ["EXPONENT_CANDIDATES", "EXPONENTS", "MAGNETIC", "currents_of_flux", "
            "flux_of_currents", "from_hinkkanen", "hinkkanen_coefficients", "hinkkanen_law", "incremental_inductances",
            "is_saturating", "ADDITIVE_SCALE", "DEFAULT_MOTOR", "DESCRIPTIONS", "DqCoefficients", "ESTIMABLE", "ESTIMATED", "FIXED",
            "MECHANICAL", "MotorParams", "NUISANCE", "SETTINGS", "UNITS", "abc_to_dq", "clarke", "coulomb_friction",
-           "dead_time_error", "stable_dead_width", "switching_ripple", "delayed", "encoder_frame",
+           "bridge_error", "dead_time_error", "stable_dead_width", "switching_ripple", "delayed", "encoder_frame",
            "dq_coefficients", "dq_derivatives", "dq_derivatives_from", "dq_to_abc", "from_search", "inverse_clarke",
            "inverse_park", "parameter_values", "park", "resistance_at", "rotor_frame", "search_scale",
            "sensor_offsets", "to_search", "with_d_flux", "with_dq_offsets"]

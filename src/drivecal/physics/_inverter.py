@@ -126,3 +126,17 @@ def dead_time_error(i_d: Any, i_q: Any, theta_e: Any, v_dead: Any, i_smooth: Any
         e_abc = [-0.5 * v_dead * (jnp.tanh((i + r) / i_smooth) + jnp.tanh((i - r) / i_smooth))
                  for i, r in zip(i_abc, ripple)]
     return abc_to_dq(e_abc[0], e_abc[1], e_abc[2], theta_e)
+
+
+def bridge_error(v_d: Any, v_q: Any, i_d: Any, i_q: Any, theta_e: Any, L_d: Any, L_q: Any, period: Any,
+                 v_dead: Any, i_smooth: Any, width: Any = None) -> tuple[Any, Any]:
+    """The bridge's voltage error ``(e_d, e_q)`` (V): :func:`dead_time_error` with the PWM ripple of
+    :func:`switching_ripple` at these currents and this angle, under the commanded ``(v_d, v_q)`` (V)
+    over a carrier period ``period`` (s).
+
+    ``width`` (A): the smooth sign's width in the error (``stable_dead_width`` for a fixed-step
+    integrator); None: ``i_smooth``. The engine bench and the model both take their error from here.
+    """
+    ripple = switching_ripple(v_d, v_q, i_d, i_q, theta_e, L_d, L_q, period, v_dead, i_smooth)
+    return dead_time_error(i_d, i_q, theta_e, v_dead, i_smooth if width is None else width, ripple)
+
