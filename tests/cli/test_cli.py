@@ -206,7 +206,8 @@ def test_fit_exit_status_is_the_verdicts(tmp_path, poor_bench, capsys):
     doc = json.loads(capsys.readouterr().out)
     assert doc["verdict"]["status"] == "partial"
     # A realistic inverter (a one-sample delay, dead time, offsets) with its effects left out: model mismatch,
-    # the delay named first. The default (--effects auto) finds them: test_default_fit_finds_the_inverter.
+    # the delay named first. The default (--effects auto) finds them: docs/fitting.md's
+    # `drivecal fit examples/inverter_bench.csv` (no flags, exit 0), run by tests/test_docs.py.
     assert main(["fit", str(EXAMPLES / "inverter_bench.csv"), "--effects", "none", "--json"]) == 4
     doc = json.loads(capsys.readouterr().out)
     assert Status.MISMATCH.exit_code == 4 and doc["verdict"]["status"] == "mismatch"
