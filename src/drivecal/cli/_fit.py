@@ -74,11 +74,11 @@ def _fit_table(cal: Calibration) -> Table:
               help="Bench effects to model: 'auto' fits those the data support (delay, dead_time, offsets; "
                    "one at a time, largest evidence first, each kept only if a likelihood-ratio test supports "
                    "it), 'none' fits none, or a comma-separated list fits those.")
-@click.option("--magnetics", "magnetics", type=click.Choice(["auto", "linear", "saturating"]), default="linear",
+@click.option("--magnetics", "magnetics", type=click.Choice(["auto", "linear", "saturating"]), default="auto",
               show_default=True,
               help="Magnetic model: 'auto' fits the saturation terms (d, q, cross) the data support, each with "
-                   "the exponents that fit best; 'linear' constant Ld, Lq; 'saturating' every term the plan "
-                   "can identify.")
+                   "the exponents that fit best, and keeps one only where it changes the flux by 2 % or more; "
+                   "'linear' constant Ld, Lq; 'saturating' every term the plan can identify.")
 @click.option("--out", "out_dir", type=click.Path(), default=None,
               help="Directory for report.json, report.html and the PNG figures (created if missing; its parent "
                    "must exist).")
@@ -99,9 +99,9 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
     LOG` proposes one).
     The motor file's values are the starting point and the prior; a parameter
     the recording cannot identify is held there and reported as such. Bench
-    effects (the inverter's delay, its dead time, sensor offsets) are found
-    from the data by default (--effects auto), the magnetic saturation with
-    --magnetics auto, and reported with the evidence;
+    effects (the inverter's delay, its dead time, sensor offsets) and the
+    magnetic saturation are found from the data by default (--effects auto,
+    --magnetics auto), and reported with the evidence;
     any parameter named in --estimate or the motor file's 'estimate' (also
     alpha_R, offset_a, offset_b) is fitted whatever the tests say.
 

@@ -21,6 +21,13 @@ no longer shows. Effects not included are reported with their last score
 test and their one-step estimate (what the data say they would be, with a
 standard error), so the delay is reported with an interval either way.
 
+With ``--magnetics auto`` (the default) the terms of the saturating law are
+candidates too, in the same order of evidence. Once a saturation term is in,
+its exponents are chosen again and a backward step (``_backward``) refits
+each selected candidate out: a saturation term the bench effects explain
+(below ``MATERIAL_SATURATION`` of the flux, or no longer significant) is
+dropped, and so is a bench effect the saturating law explains.
+
 The same machinery serves any family of nested model extensions: a
 candidate is a name, the parameters it adds and the parameters whose
 sensitivity columns its score test probes (``diagnose.EFFECTS``).
@@ -42,22 +49,16 @@ from ..errors import DrivecalError
 from ..fitting import FitOptions, fit_currents
 from ..identify import assess_identifiability
 from ..model import Experiment
-from ..physics import (ESTIMABLE, EXPONENT_CANDIDATES, EXPONENTS, MAGNETIC, MotorParams, flux_of_currents,
-                       is_saturating)
+from ..physics import ESTIMABLE, EXPONENT_CANDIDATES, EXPONENTS, MotorParams, is_saturating
 from ..results import Calibration
+from ._backward import drop_effects, refine_exponents
+from ._choices import (CANDIDATES, MATERIAL_SATURATION, EffectChoice, choice_note, fitted_estimate, lr_statistic,
+                       one_step, saturation_size)
 
 #: Values of ``--effects`` besides a list of effect names.
 MODES: tuple[str, ...] = ("auto", "none")
 #: Values of ``--magnetics``: the data choose; the linear machine only; the saturating law always.
 MAGNETICS: tuple[str, ...] = ("auto", "linear", "saturating")
-#: Every candidate of the selection: the bench effects, then the terms of the saturating law.
-_EFFECTS = {**EFFECTS, **MAGNETIC_EFFECTS}
-
-#: A saturation term is kept only where, fitted, it changes the flux at the tested currents by at least this
-#: fraction of the linear machine's flux swing there (2 %). Below it the term may be statistically clear (a
-#: switching inverter's duty-dependent ripple at 20 mA noise shows as 0.7 % "saturation" of a linear motor)
-#: but it is not the iron: the linear model's Ld, Lq are then the tested range's average, within that.
-MATERIAL_SATURATION = 0.02
 
 #: A one-step delay estimate further than this (samples) from the fitted one is not a start: use the nominal.
 _DELAY_START_SPAN = 10.0
@@ -78,50 +79,6 @@ def parse_effects(text: str, source: str = "--effects") -> str | tuple[str, ...]
                             f"or a comma-separated list of {', '.join(EFFECTS)}.")
     return tuple(e for e in EFFECTS if e in words)
 
-
-@dataclasses.dataclass(frozen=True)
-class EffectChoice:
-    """What the selection decided about one bench effect.
-
-    Attributes:
-        effect: a key of ``diagnose.EFFECTS`` (``delay``, ``dead_time``, ``offsets``).
-        included: the final fit estimates it.
-        how: ``"selected"`` (by the tests), ``"requested"`` (named by the user),
-            ``"not supported"`` (its tests fell short), ``"not identifiable"``
-            (the plan cannot show it), ``"too small"`` (a saturation term below
-            ``MATERIAL_SATURATION``), ``"fixed"`` (the delay given with
-            ``--delay``) or ``"not tested"`` (``--effects none``).
-        test: the evidence: ``"likelihood ratio"``, ``"score"`` or ``""``.
-        statistic: the test's statistic (-), NaN when untested.
-        dof: its degrees of freedom.
-        p_value: its p-value, NaN when untested.
-        p_threshold: the level it was judged at.
-        estimate: per parameter ``(value, standard error)`` in its unit: the fit's
-            when included, else the one-step estimate from the final fit.
-        note: one sentence for the report.
-    """
-
-    effect: str
-    included: bool
-    how: str
-    test: str = ""
-    statistic: float = math.nan
-    dof: int = 0
-    p_value: float = math.nan
-    p_threshold: float = math.nan
-    estimate: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
-    note: str = ""
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready (NaN as null)."""
-        def num(x):
-            return None if x is None or not math.isfinite(x) else float(x)
-
-        return {"effect": self.effect, "included": self.included, "how": self.how, "test": self.test,
-                "statistic": num(self.statistic), "dof": self.dof, "p_value": num(self.p_value),
-                "p_threshold": num(self.p_threshold),
-                "estimate": {n: {"value": num(v), "se": num(s)} for n, (v, s) in self.estimate.items()},
-                "note": self.note}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,19 +125,6 @@ def _names_with(names: tuple[str, ...], extra: tuple[str, ...]) -> tuple[str, ..
     return tuple(n for n in ESTIMABLE if n in wanted)
 
 
-def _lr(before: Calibration, after: Calibration) -> float:
-    """``m ln(RSS_before / RSS_after)``: the likelihood-ratio statistic of nested Gaussian fits (-)."""
-    return float(before.num_residuals * math.log(float(before.rss) / float(after.rss)))
-
-
-def _fitted_estimate(cal: Calibration, params: tuple[str, ...]) -> dict[str, tuple[float, float]]:
-    return {n: (float(cal.estimate[cal.names.index(n)]), float(cal.se[cal.names.index(n)]))
-            for n in params if n in cal.fit_names}
-
-
-def _one_step(test: dict[str, Any]) -> dict[str, tuple[float, float]]:
-    return {n: (v["estimate"], v["se"]) for n, v in test["one_step"].items()}
-
 
 def _start(motor: MotorParams, test: dict[str, Any]) -> MotorParams:
     """``motor`` with the tested effect's probed parameters at their one-step estimates (where sensible)."""
@@ -211,7 +155,7 @@ def select_effects(
     options: FitOptions = FitOptions(),
     source: str = "bench",
     fixed_delay: bool = False,
-    magnetics: str = "linear",
+    magnetics: str = "auto",
 ) -> EffectSelection:
     """Fit ``names`` with the bench effects and the magnetic law the data support (see the module docstring).
 
@@ -231,7 +175,7 @@ def select_effects(
     """
     if magnetics not in MAGNETICS:
         raise DrivecalError(f"--magnetics: unknown mode {magnetics!r}; give {', '.join(MAGNETICS)}.")
-    requested = tuple(e for e, (params, _, _) in _EFFECTS.items() if set(params) & set(names))
+    requested = tuple(e for e, (params, _, _) in CANDIDATES.items() if set(params) & set(names))
     magnetic = tuple(e for e in MAGNETIC_EFFECTS if e not in requested) if magnetics != "linear" else ()
     if magnetic or set(requested) & set(MAGNETIC_EFFECTS):
         prior = _with_reference_current(prior, currents)
@@ -241,17 +185,18 @@ def select_effects(
         cal = fit_currents(experiment, currents, prior, names=fit_names, options=options, source=source)
         fits, decided, last = 1, {}, {}
         if magnetic:
+            left_out = tuple(e for e in EFFECTS if e not in listed and e not in requested)
             cal, fits, decided, last = _add_effects(experiment, currents, prior, cal, list(magnetic), options,
-                                                    source, force=magnetics == "saturating")
+                                                    source, force=magnetics == "saturating", left_out=left_out)
         choices = []
-        for e, (params, _, _) in _EFFECTS.items():
+        for e, (params, _, _) in CANDIDATES.items():
             if e in MAGNETIC_EFFECTS and e not in requested:
                 choices.append(_choice(e, cal, decided, last, magnetics))
                 continue
             chosen = e in listed or e in requested
-            est = _fitted_estimate(cal, params)
-            choices.append(EffectChoice(e, chosen and bool(est), "requested" if chosen else "not tested",
-                                        estimate=est, note=_note(e, chosen, "requested" if chosen else "not tested")))
+            est = fitted_estimate(cal, params)
+            how = "requested" if chosen else "not tested"
+            choices.append(EffectChoice(e, chosen and bool(est), how, estimate=est, note=choice_note(e, chosen, how)))
         return EffectSelection(cal, experiment, "none" if effects == "none" else "list", tuple(choices), fits,
                                magnetics)
 
@@ -259,12 +204,13 @@ def select_effects(
     with _compiled_ahead(prepare_unmodelled_effects, prior, names, experiment, tuple(candidates)):
         cal = fit_currents(experiment, currents, prior, names=names, options=options, source=source)
     cal, fits, decided, last = _add_effects(experiment, currents, prior, cal, candidates + list(magnetic), options,
-                                            source, force=magnetics == "saturating")
+                                            source, force=magnetics == "saturating",
+                                            left_out=("delay",) if fixed_delay and "delay" not in requested else ())
     choices = []
-    for e, (params, _, _) in _EFFECTS.items():
+    for e, (params, _, _) in CANDIDATES.items():
         if e in requested:
-            choices.append(EffectChoice(e, True, "requested", estimate=_fitted_estimate(cal, params),
-                                        note=_note(e, True, "requested")))
+            choices.append(EffectChoice(e, True, "requested", estimate=fitted_estimate(cal, params),
+                                        note=choice_note(e, True, "requested")))
         elif fixed_delay and e == "delay":
             choices.append(EffectChoice(e, False, "fixed", estimate={"delay": (float(prior.delay), 0.0)},
                                         note=f"delay fixed at {float(prior.delay):g} samples (--delay)"))
@@ -306,27 +252,33 @@ def _with_reference_current(prior: MotorParams, currents: np.ndarray) -> MotorPa
 
 def _choice(e: str, cal: Calibration, decided: dict, last: dict, magnetics: str) -> EffectChoice:
     """The final word on effect ``e`` that the user did not name: fitted, rejected, or its last score test."""
-    params = _EFFECTS[e][0]
+    params = CANDIDATES[e][0]
     if e in MAGNETIC_EFFECTS and magnetics == "linear":
-        return EffectChoice(e, False, "not tested", note=f"{_EFFECTS[e][2]}: not tested (--magnetics linear)")
+        return EffectChoice(e, False, "not tested", note=f"{CANDIDATES[e][2]}: not tested (--magnetics linear)")
     if e in decided and decided[e].included:  # the final fit's estimates, not those when it was added
-        return dataclasses.replace(decided[e], estimate=_fitted_estimate(cal, params))
-    if e in decided and e not in last:
+        return dataclasses.replace(decided[e], estimate=fitted_estimate(cal, params))
+    if e in decided and (e not in last or decided[e].how == "masked"):
         return decided[e]
     if e in last:
         t = last[e]
         how = decided[e].how if e in decided else "not supported"
+        if how == "not identifiable" and not t["suspected"]:
+            how = "not supported"
         return EffectChoice(e, False, how, "score", t["statistic"], t["dof"], t["p_value"], t["p_threshold"],
-                            _one_step(t), _note(e, False, how))
-    return EffectChoice(e, False, "not tested", note=_note(e, False, "not tested"))
+                            one_step(t), choice_note(e, False, how))
+    return EffectChoice(e, False, "not tested", note=choice_note(e, False, "not tested"))
 
 
 def _add_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParams, cal: Calibration,
-                 candidates: list[str], options: FitOptions, source: str, force: bool = False) -> tuple:
+                 candidates: list[str], options: FitOptions, source: str, force: bool = False,
+                 left_out: tuple[str, ...] = ()) -> tuple:
     """Forward selection from ``cal`` over ``candidates`` (steps 2 to 4 of the module docstring).
 
     With ``force`` the magnetic candidates are added whatever their tests say (``--magnetics
-    saturating``), where the plan can identify them. Returns ``(calibration, refits, decided, last)``:
+    saturating``), where the plan can identify them. ``left_out`` are bench effects the fit does not
+    model (``--effects none`` or a list, a delay fixed by ``--delay``): they are score-tested beside
+    the candidates, and where one of them has the largest evidence, no saturation term is added for
+    what it does (the verdict names it). Returns ``(calibration, refits, decided, last)``:
     the final fit, how many fits were run, an :class:`EffectChoice` per effect decided on, and each
     remaining candidate's last score test.
     """
@@ -343,14 +295,26 @@ def _add_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParam
             # A base fit that could not converge is far from the data: the iron's saturation, not a small
             # bench effect, is what stops a linear model converging on a plan that identifies it.
             tested = tuple(e for e in candidates if e in MAGNETIC_EFFECTS)
+        blockers = left_out if bool(cal.converged) and not force else ()
         tests = unmodelled_effects(cal.motor, cal.fit_names, experiment, currents, float(cal.sigma_hat),
-                                   effects=tested)
-        last.update({t["effect"]: t for t in tests})
+                                   effects=tested + blockers)
+        last.update({t["effect"]: t for t in tests if t["effect"] not in blockers})
+        if tests[0]["suspected"] and tests[0]["effect"] in blockers:
+            # What the fit leaves out explains more than any saturation term would: none stands in for it.
+            for e in [c for c in candidates if c in MAGNETIC_EFFECTS]:
+                t = last[e]
+                decided[e] = EffectChoice(e, False, "masked", "score", t["statistic"], t["dof"], t["p_value"],
+                                          t["p_threshold"], one_step(t),
+                                          f"{CANDIDATES[e][2]}: not fitted, the residuals point first at "
+                                          f"{CANDIDATES[tests[0]['effect']][2]}, which this fit does not model")
+                candidates.remove(e)
+            tests = [t for t in tests if t["effect"] in candidates]
+            if not tests:
+                break
         forced = [t for t in tests if force and t["effect"] in MAGNETIC_EFFECTS]
-        # The machine's own law before the bench's effects: a significant saturation term is added first,
-        # so that offsets or a delay never stand in for what the iron does.
-        magnetic = [t for t in tests if t["suspected"] and t["effect"] in MAGNETIC_EFFECTS]
-        best = magnetic[0] if magnetic else tests[0] if tests[0]["suspected"] or not forced else forced[0]
+        # The largest evidence first, the iron's law and the bench's effects alike: whichever was added for
+        # what the other explains is refitted out by the backward step (``drop_effects``).
+        best = tests[0] if tests[0]["suspected"] or not forced else forced[0]
         if not best["suspected"] and not forced:
             break
         effect = best["effect"]
@@ -358,18 +322,18 @@ def _add_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParam
         start = _start(cal.motor, best)
         if not bool(cal.converged):  # no estimates to start from: the nominal motor, the test's exponents
             start = prior.replace(**{n: v["estimate"] for n, v in best["one_step"].items() if n in EXPONENTS})
-        trial = _names_with(cal.fit_names, _EFFECTS[effect][0])
+        trial = _names_with(cal.fit_names, CANDIDATES[effect][0])
         try:
             # Judged at the fit so far with the effect at its one-step estimate: the dead time's width
             # shows only where v_dead is not zero.
             ident = assess_identifiability(experiment, start, names=trial)
         except DrivecalError:
             ident = None
-        probes = _EFFECTS[effect][1]
+        probes = CANDIDATES[effect][1]
         if ident is None or not set(probes) <= set(ident.fit_names):
             decided[effect] = EffectChoice(effect, False, "not identifiable", "score", best["statistic"],
-                                           best["dof"], best["p_value"], best["p_threshold"], _one_step(best),
-                                           _note(effect, False, "not identifiable", ident))
+                                           best["dof"], best["p_value"], best["p_threshold"], one_step(best),
+                                           choice_note(effect, False, "not identifiable", ident))
             continue
         trial = tuple(n for n in trial if n in ident.fit_names or n in cal.fit_names)
         if trial != ident.names:
@@ -381,139 +345,40 @@ def _add_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParam
                              source=source, identifiability=ident)
         fits += 1
         added = len(refit.fit_names) - len(cal.fit_names)
-        statistic = _lr(cal, refit) if bool(refit.converged) and added > 0 else math.nan
+        statistic = lr_statistic(cal, refit) if bool(refit.converged) and added > 0 else math.nan
         choices = len(EXPONENT_CANDIDATES["sat_d"][1]) if effect in MAGNETIC_EFFECTS else 1
         p = float(min(1.0, choices * chi2_sf(statistic, added))) if math.isfinite(statistic) else math.nan
         threshold = best["p_threshold"]
         forced_in = force and effect in MAGNETIC_EFFECTS and bool(refit.converged)
-        size = saturation_size(refit.motor, _EFFECTS[effect][1][0], currents) if effect in MAGNETIC_EFFECTS else 1.0
+        size = saturation_size(refit.motor, CANDIDATES[effect][1][0], currents) if effect in MAGNETIC_EFFECTS else 1.0
         if math.isfinite(p) and p < threshold and size < MATERIAL_SATURATION and not forced_in:
             decided[effect] = EffectChoice(effect, False, "too small", "likelihood ratio", statistic, added, p,
-                                           threshold, _fitted_estimate(refit, _EFFECTS[effect][0]),
-                                           f"{_EFFECTS[effect][2]}: {100 * size:.2g} % of the flux at the tested "
+                                           threshold, fitted_estimate(refit, CANDIDATES[effect][0]),
+                                           f"{CANDIDATES[effect][2]}: {100 * size:.2g} % of the flux at the tested "
                                            f"currents, below the {100 * MATERIAL_SATURATION:g} % that is modelled")
             continue
         if (math.isfinite(p) and p < threshold) or forced_in:
             how = "selected" if math.isfinite(p) and p < threshold else "requested"
             decided[effect] = EffectChoice(effect, True, how, "likelihood ratio", statistic, added, p,
-                                           threshold, _fitted_estimate(refit, _EFFECTS[effect][0]),
-                                           _note(effect, True, how))
+                                           threshold, fitted_estimate(refit, CANDIDATES[effect][0]),
+                                           choice_note(effect, True, how))
             cal = refit
             # Earlier decisions stand; what is left is tested again against the larger model.
         else:
             decided[effect] = EffectChoice(effect, False, "not supported", "likelihood ratio", statistic, added, p,
-                                           threshold, _one_step(best), _note(effect, False, "not supported"))
+                                           threshold, one_step(best), choice_note(effect, False, "not supported"))
     added_terms = [e for e, c in decided.items() if c.included and e in MAGNETIC_EFFECTS]
     if added_terms and bool(cal.converged):
-        cal, more = _refine_exponents(experiment, currents, prior, cal, added_terms, options, source)
+        cal, more = refine_exponents(experiment, currents, prior, cal, added_terms, options, source)
         fits += more
-        cal, more, dropped = _drop_effects(experiment, currents, prior, cal, decided, options, source)
+        cal, more, dropped = drop_effects(experiment, currents, prior, cal, decided, options, source)
         fits += more
         candidates += dropped
+    # The final word on what was not added, and on what the plan could not show: the score tests against the
+    # final fit (a term suggested only while a larger effect was missing is then no longer suggested).
+    candidates += [e for e, c in decided.items() if c.how == "not identifiable" and e not in candidates]
     if candidates and bool(cal.converged):
-        # The final word on what was not added: the score tests against the final fit.
         for t in unmodelled_effects(cal.motor, cal.fit_names, experiment, currents, float(cal.sigma_hat),
                                     effects=tuple(candidates)):
             last[t["effect"]] = t
     return cal, fits, decided, last
-
-
-def _drop_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParams, cal: Calibration,
-                  decided: dict, options: FitOptions, source: str) -> tuple[Calibration, int, list[str]]:
-    """The backward step once the saturating law is in: bench effects it explains are dropped.
-
-    A bench effect added while the law was incomplete (before its exponents were chosen again) may
-    have stood in for the iron. Each selected bench effect is refitted out; the one whose
-    likelihood ratio is least significant is dropped if it is no longer significant at the level it
-    was added at, and the step repeats. Returns ``(calibration, refits, dropped effects)``.
-    """
-    fits, dropped = 0, []
-    while True:
-        trials = []
-        for e, c in decided.items():
-            if not (c.included and c.how == "selected" and e in EFFECTS):
-                continue
-            params = EFFECTS[e][0]
-            start = cal.motor.replace(**{n: getattr(prior, n) for n in params})
-            centre = prior.replace(**{n: getattr(cal.motor, n) for n in EXPONENTS + ("i_ref",)})
-            reduced = fit_currents(experiment, currents, centre, names=tuple(n for n in cal.names if n not in params),
-                                   initial=start, options=options, source=source)
-            fits += 1
-            removed = len(cal.fit_names) - len(reduced.fit_names)
-            if bool(reduced.converged) and removed > 0:
-                statistic = max(0.0, _lr(reduced, cal))
-                trials.append((float(min(1.0, chi2_sf(statistic, removed))), e, statistic, removed, reduced))
-        if not trials:
-            return cal, fits, dropped
-        p, e, statistic, removed, reduced = max(trials, key=lambda t: t[0])
-        if not p >= decided[e].p_threshold:
-            return cal, fits, dropped
-        decided[e] = EffectChoice(e, False, "not supported", "likelihood ratio", statistic, removed, p,
-                                  decided[e].p_threshold, _fitted_estimate(cal, EFFECTS[e][0]),
-                                  f"{_EFFECTS[e][2]}: dropped, the saturating law explains what it stood in for")
-        cal = reduced
-        dropped.append(e)
-
-
-def saturation_size(motor: MotorParams, term: str, currents: np.ndarray) -> float:
-    """How much saturation term ``term`` (``sat_d``, ``sat_q``, ``sat_dq``) alone changes the flux (fraction).
-
-    The largest change of ``psi_d`` or ``psi_q`` over the measured currents (A, shape (M, 2); up to
-    2000 of them), each divided by that axis's linear flux swing at the largest tested current
-    (``Ld * max|i_d|``, ``Lq * max|i_q|``, each at least a tenth of the other axis's current).
-    """
-    c = np.asarray(currents, dtype=float).reshape(-1, 2)
-    c = c[np.all(np.isfinite(c), axis=1)][:: max(1, len(c) // 2000)]
-    if c.size == 0:
-        return 0.0
-    only = motor.replace(**{n: (getattr(motor, n) if n == term else 0.0) for n in MAGNETIC})
-    psi_d, psi_q = (np.asarray(f) for f in flux_of_currents(c[:, 0], c[:, 1], only))
-    peak = np.max(np.abs(c), axis=0)
-    peak = np.maximum(peak, 0.1 * peak.max())
-    if peak.max() <= 0.0:
-        return 0.0
-    change_d = np.max(np.abs(psi_d - float(motor.lambda_m) - float(motor.Ld) * c[:, 0])) / (float(motor.Ld) * peak[0])
-    change_q = np.max(np.abs(psi_q - float(motor.Lq) * c[:, 1])) / (float(motor.Lq) * peak[1])
-    return float(max(change_d, change_q))
-
-
-def _refine_exponents(experiment: Experiment, currents: np.ndarray, prior: MotorParams, cal: Calibration,
-                      terms: list[str], options: FitOptions, source: str) -> tuple[Calibration, int]:
-    """Each added magnetic term's exponents chosen again with the whole law fitted: the candidate of least RSS.
-
-    A term's exponents were chosen by its score test against the fit it was added to; with the other
-    terms in, another candidate may fit better. One pass, term by term, each candidate refitted from the
-    current estimates (the same parameters, so the compiled fit is reused).
-    """
-    fits = 0
-    for effect in terms:
-        names, values = EXPONENT_CANDIDATES[_EFFECTS[effect][1][0]]
-        for candidate in values:
-            if all(float(getattr(cal.motor, n)) == v for n, v in zip(names, candidate)):
-                continue
-            changes = dict(zip(names, candidate))
-            centre = prior.replace(**{**{n: getattr(cal.motor, n) for n in EXPONENTS + ("i_ref",)}, **changes})
-            trial = fit_currents(experiment, currents, centre, names=cal.names,
-                                 initial=cal.motor.replace(**changes), options=options, source=source,
-                                 identifiability=cal.identifiability)
-            fits += 1
-            if bool(trial.converged) and float(trial.rss) < float(cal.rss):
-                cal = trial
-    return cal, fits
-
-
-def _note(effect: str, included: bool, how: str, ident: Any = None) -> str:
-    what = _EFFECTS[effect][2]
-    if how == "requested":
-        return f"{what}: fitted as requested"
-    if how == "selected":
-        return f"{what}: fitted, the data support it (likelihood-ratio test)"
-    if how == "not identifiable":
-        reasons = "; ".join(f"{n}: {r}" for n, r in (getattr(ident, "reasons", None) or {}).items())
-        return f"{what}: suggested by the residuals, but this plan cannot estimate it" + (f" ({reasons})"
-                                                                                          if reasons else "")
-    if how == "not tested":
-        return f"{what}: not tested (--effects none)" if not included else what
-    if how == "too small":
-        return f"{what}: below the {100 * MATERIAL_SATURATION:g} % of the flux that is modelled"
-    return f"{what}: not supported by the data"
