@@ -147,13 +147,27 @@ def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment
     ``m`` = 2 x samples (i_d and i_q interleaved per sample, as ``currents.reshape(-1)``).
     """
     probes = tuple(n for e in effects for n in _ALL_EFFECTS[e][1] if n not in fit_names)
-    all_names = tuple(fit_names) + probes
-    # Sensitivity columns at v_dead = 0 need no sub-steps (they resolve the sign's turn at v_dead != 0).
-    probe = dataclasses.replace(model_experiment(experiment, motor, all_names), dead_time_substeps=1)
-    # The currents' rows only (a measured speed as an output adds rows of its own): the tests read current residuals.
-    jac = np.asarray(sensitivity_jacobian(motor, probe, all_names))[: 2 * experiment.num_samples]
-    columns = {e: jac[:, [all_names.index(n) for n in _ALL_EFFECTS[e][1]]] for e in effects}
-    return jac[:, : len(fit_names)], columns
+    step = max(1, _MAX_COLUMNS - len(fit_names))
+    found: dict[str, np.ndarray] = {}
+    fitted = None
+    for k in range(0, max(len(probes), 1), step):
+        all_names = tuple(fit_names) + probes[k:k + step]
+        # Sensitivity columns at v_dead = 0 need no sub-steps (they resolve the sign's turn at v_dead != 0).
+        probe = dataclasses.replace(model_experiment(experiment, motor, all_names), dead_time_substeps=1)
+        # The currents' rows only (a measured speed as an output adds rows of its own): the tests read current
+        # residuals.
+        jac = np.asarray(sensitivity_jacobian(motor, probe, all_names))[: 2 * experiment.num_samples]
+        fitted = jac[:, : len(fit_names)] if fitted is None else fitted
+        found.update({n: jac[:, i] for i, n in enumerate(all_names)})
+    columns = {e: np.stack([found[n] for n in _ALL_EFFECTS[e][1]], axis=1) for e in effects}
+    return fitted, columns
+
+
+#: Most Jacobian columns (fitted and probed) one score-test kernel takes; more probes run in further kernels.
+#: A saturating motor (R, Ld, Lq, lambda_m and two terms) probed for the delay, the dead time, the offsets and
+#: an encoder offset at once (11 columns, examples/inverter_bench.csv) crashed XLA:CPU with a segmentation
+#: fault; any 10 of them ran.
+_MAX_COLUMNS = 10
 
 
 #: What :func:`prepare_unmodelled_effects` has compiled in this process.
