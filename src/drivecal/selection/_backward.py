@@ -118,4 +118,3 @@ def refine_exponents(experiment: Experiment, currents: np.ndarray, prior: MotorP
             if bool(trial.converged) and float(trial.rss) < float(cal.rss):
                 cal = trial
     return cal, fits
-

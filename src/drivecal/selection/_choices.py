@@ -71,7 +71,6 @@ class EffectChoice:
                 "note": self.note}
 
 
-
 def lr_statistic(before: Calibration, after: Calibration) -> float:
     """``m ln(RSS_before / RSS_after)``: the likelihood-ratio statistic of nested Gaussian fits (-)."""
     return float(before.num_residuals * math.log(float(before.rss) / float(after.rss)))
@@ -84,7 +83,6 @@ def fitted_estimate(cal: Calibration, params: tuple[str, ...]) -> dict[str, tupl
 
 def one_step(test: dict[str, Any]) -> dict[str, tuple[float, float]]:
     return {n: (v["estimate"], v["se"]) for n, v in test["one_step"].items()}
-
 
 
 def saturation_size(motor: MotorParams, term: str, currents: np.ndarray) -> float:
@@ -107,7 +105,6 @@ def saturation_size(motor: MotorParams, term: str, currents: np.ndarray) -> floa
     change_d = np.max(np.abs(psi_d - float(motor.lambda_m) - float(motor.Ld) * c[:, 0])) / (float(motor.Ld) * peak[0])
     change_q = np.max(np.abs(psi_q - float(motor.Lq) * c[:, 1])) / (float(motor.Lq) * peak[1])
     return float(max(change_d, change_q))
-
 
 
 def choice_note(effect: str, included: bool, how: str, ident: Any = None) -> str:

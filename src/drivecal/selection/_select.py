@@ -80,7 +80,6 @@ def parse_effects(text: str, source: str = "--effects") -> str | tuple[str, ...]
     return tuple(e for e in EFFECTS if e in words)
 
 
-
 @dataclasses.dataclass(frozen=True)
 class EffectSelection:
     """A fit with its bench effects chosen: the final calibration and the decision on each effect.
@@ -123,7 +122,6 @@ class EffectSelection:
 def _names_with(names: tuple[str, ...], extra: tuple[str, ...]) -> tuple[str, ...]:
     wanted = set(names) | set(extra)
     return tuple(n for n in ESTIMABLE if n in wanted)
-
 
 
 def _start(motor: MotorParams, test: dict[str, Any]) -> MotorParams:
