@@ -27,10 +27,11 @@ MATERIAL_SATURATION = 0.02
 
 @dataclasses.dataclass(frozen=True)
 class EffectChoice:
-    """What the selection decided about one bench effect.
+    """What the selection decided about one candidate: a bench effect or a term of the saturating law.
 
     Attributes:
-        effect: a key of ``diagnose.EFFECTS`` (``delay``, ``dead_time``, ``offsets``).
+        effect: a key of ``diagnose.EFFECTS`` (``delay``, ``dead_time``, ``offsets``) or of
+            ``diagnose.MAGNETIC_EFFECTS`` (``saturation_d``, ``saturation_q``, ``cross_saturation``).
         included: the final fit estimates it.
         how: ``"selected"`` (by the tests), ``"requested"`` (named by the user),
             ``"not supported"`` (its tests fell short), ``"not identifiable"``
@@ -108,6 +109,7 @@ def saturation_size(motor: MotorParams, term: str, currents: np.ndarray) -> floa
 
 
 def choice_note(effect: str, included: bool, how: str, ident: Any = None) -> str:
+    """The report's sentence on ``effect`` decided ``how`` (``ident``: the identifiability that refused it)."""
     what = CANDIDATES[effect][2]
     if how == "requested":
         return f"{what}: fitted as requested"
