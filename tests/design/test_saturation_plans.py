@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -203,3 +204,23 @@ def test_design_reports_the_law_it_predicted_with(syrm, syrm_design):
     report = assess_design(syrm_design.plan, syrm, noise_sigma=0.08, names=SYRM_NAMES)
     assert any("saturating magnetic law" in n for n in report.notes)
     assert report.segments == syrm_design.segments
+
+
+@pytest.mark.slow  # a plan through the CLI (~15 s)
+def test_plan_cli_reads_the_syrm_law_from_its_motor_file(tmp_path, capsys, syrm_design, syrm_bench):
+    """`drivecal plan --motor examples/syrm_motor.toml` (Hinkkanen's published law in the file) is the design above.
+
+    So its run on the saturating engine bench is ``syrm_bench``: rank full and never over the current limit.
+    """
+    out = tmp_path / "syrm_plan.toml"
+    motor = Path(__file__).resolve().parents[2] / "examples" / "syrm_motor.toml"
+    args = ["plan", "--motor", str(motor), "--vdc", "540", "--imax", str(SYRM_LIMIT), "--estimate", ",".join(SYRM_NAMES)]
+    assert main(args + ["--json", "--out", str(out)]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["assessment"]["identifiable"] and doc["assessment"]["identifiability"]["rank"] == len(SYRM_NAMES)
+    assert any("saturating magnetic law" in n for n in doc["assessment"]["notes"])  # the file's law, not a margin
+    plan, designed = dc.load_plan(out), syrm_design.plan
+    assert [(s.name, s.locked) for s in plan.segments] == [(s.name, s.locked) for s in designed.segments]
+    for written, expected in zip(plan.segments, designed.segments):
+        assert np.array_equal(written.voltages(plan.sample_rate), expected.voltages(designed.sample_rate))
+    assert max(_peaks(syrm_bench.currents)) <= plan.current_limit

@@ -18,7 +18,7 @@ from hypothesis import HealthCheck, given, note, seed, settings
 from hypothesis import strategies as st
 
 import drivecal as dc
-from drivecal.data import MotorSpec
+from drivecal.data import HinkkanenSpec, MotorSpec
 
 EXAMPLES = int(os.environ.get("DRIVECAL_FUZZ_EXAMPLES", "2000"))
 SEED = int(os.environ.get("DRIVECAL_FUZZ_SEED", "20230"))
@@ -140,11 +140,18 @@ MOTOR = _table({k: _quantity(u, [0.45, 3.2e-3, 0.0533, 1.0, 1e-12]) for k, u in 
        if k not in ("R", "Ld", "Lq", "lambda_m")},
     "pole_pairs": st.one_of(st.integers(-2, 12), st.sampled_from([2**70, 4.0, 4.5]), JUNK),
     "delay_samples": st.one_of(st.integers(-2, 120), JUNK),
-    "estimate": st.one_of(st.lists(st.sampled_from(["R", "Ld", "Lq", "lambda_m", "v_dead", "alpha_R", "J", "x"]),
-                                   max_size=4), JUNK),
+    "estimate": st.one_of(st.lists(st.sampled_from(["R", "Ld", "Lq", "lambda_m", "v_dead", "alpha_R", "J", "sat_d",
+                                                    "x"]), max_size=4), JUNK),
+    # a saturating law: drivecal's per-unit keys, or Hinkkanen's SI table (issue 18)
+    **{k: _often(st.sampled_from([0.0, 0.3, 2.0, 1e3]), st.sampled_from([-1.0, math.nan, 1e300, "1 A"]) | JUNK)
+       for k in ("sat_d", "sat_q", "sat_dq", "exp_d", "exp_dq_q")},
+    "i_ref": _quantity("A", [20.0, 1.0]),
+    "hinkkanen": _table({k: st.sampled_from(v) for k, v in {"a_d0": [17.4, 0.0], "a_q0": [52.1, 1e-300]}.items()},
+                        {k: st.sampled_from(v) for k, v in {"a_dd": [373.0, -1.0], "S": [5, 0, 11],
+                                                            "a_dq": [1120.0, 0.0], "V": [0, 1.5]}.items()}),
 })
 MOTOR_DOCUMENT = _often(MOTOR, JUNK)
-MOTOR_FIELDS = {*MotorSpec.model_fields, "unknown key", "motor"}
+MOTOR_FIELDS = {*MotorSpec.model_fields, *HinkkanenSpec.model_fields, "unknown key", "motor"}
 
 
 def _check(load, document, fields: set[str]):

@@ -161,8 +161,9 @@ def _plan_noise(plan, noise: float | None) -> tuple[float, str]:
 
 
 
-_MOTOR_HELP = ("Motor file (TOML): nominal R, Ld, Lq, lambda_m (the prior) and fixed pole_pairs, J, B. "
-               "Default: the 48 V demo motor.")
+_MOTOR_HELP = ("Motor file (TOML): nominal R, Ld, Lq, lambda_m (the prior) and fixed pole_pairs, J, B; "
+               "optionally a saturating magnetic law (sat_d, sat_q, sat_dq or a [hinkkanen] table, "
+               "examples/syrm_motor.toml). Default: the 48 V demo motor.")
 
 
 def _motor_option(f):

@@ -12,7 +12,7 @@ from ._inspect import ChannelInfo, Inspection, guess_columns, inspect_log
 from ._log_units import COLUMN_QUANTITY, LOG_UNITS, SI_UNIT, canonical_unit
 from ._logs import LOG_FORMATS, LogChannel, is_log, read_log
 from ._mapping import check_mapped, log_channels, read_columns
-from ._motor_file import MotorFile, MotorSpec, load_motor, motor_from_dict
+from ._motor_file import HinkkanenSpec, MotorFile, MotorSpec, load_motor, motor_from_dict
 from ._tolerance import Tolerance, tolerance_of, tolerances_of
 from ._readers import FORMATS, TABLE_FORMATS, TEXT_COLUMNS, columns_of, csv_dialect, read_table
 from ._windows import Proposal, propose_windows
@@ -20,9 +20,11 @@ from ._speed import (INPUT_ERROR_RATIO_MAX, SpeedChoice, SpeedResolution, choose
                      speed_lattice, speed_resolution, update_period)
 
 __all__ = ["AT_REST_NOISE_SAMPLES", "BenchData", "BenchFormat", "COLUMN_QUANTITY", "ChannelInfo", "DQ_COLUMNS",
-           "FORMATS", "INPUT_ERROR_RATIO_MAX", "Inspection", "LOG_FORMATS", "LOG_UNITS", "LogChannel", "MAPPABLE", "MotorFile", "MotorSpec",
-           "Proposal", "SI_UNIT", "SegmentData", "SpeedChoice", "SpeedResolution", "TABLE_FORMATS", "TEXT_COLUMNS", "Tolerance", "Window", "bench_from_frame",
-           "benches_from_frames", "canonical_unit", "check_mapped", "choose_speed", "columns_of", "csv_dialect", "format_from_dict",
-           "guess_columns", "input_error_ratio", "inspect_log", "is_log", "load_bench", "load_format", "load_motor", "log_channels",
-           "motor_from_dict", "propose_windows", "read_columns", "read_log", "read_table", "speed_lattice", "speed_resolution", "stacked_experiment", "tolerance_of",
+           "FORMATS", "INPUT_ERROR_RATIO_MAX", "Inspection", "LOG_FORMATS", "LOG_UNITS", "LogChannel", "MAPPABLE",
+           "HinkkanenSpec", "MotorFile", "MotorSpec", "Proposal", "SI_UNIT", "SegmentData", "SpeedChoice",
+           "SpeedResolution", "TABLE_FORMATS", "TEXT_COLUMNS", "Tolerance", "Window", "bench_from_frame",
+           "benches_from_frames", "canonical_unit", "check_mapped", "choose_speed", "columns_of", "csv_dialect",
+           "format_from_dict", "guess_columns", "input_error_ratio", "inspect_log", "is_log", "load_bench",
+           "load_format", "load_motor", "log_channels", "motor_from_dict", "propose_windows", "read_columns",
+           "read_log", "read_table", "speed_lattice", "speed_resolution", "stacked_experiment", "tolerance_of",
            "tolerances_of", "update_period"]

@@ -16,7 +16,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from ..errors import DrivecalError
-from ..physics import DEFAULT_MOTOR, ESTIMABLE, ESTIMATED, MotorParams
+from ..physics import DEFAULT_MOTOR, ESTIMABLE, ESTIMATED, EXPONENTS, MAGNETIC, MotorParams, from_hinkkanen
 from ._tolerance import Tolerance, tolerances_of
 from .._units import StrictModel, explain, quantity, read_toml
 
@@ -24,6 +24,37 @@ from .._units import StrictModel, explain, quantity, read_toml
 #: The keys of a motor file that describe the motor itself: a file that leaves one out gets the default
 #: (48 V demo) motor's value, which is rarely what a real motor has (:attr:`MotorFile.defaulted`).
 REQUIRED_KEYS = ("R", "Ld", "Lq", "lambda_m", "pole_pairs")
+
+
+def _exponent(default: float):
+    """A saturation exponent: a plain number from 0 to 10."""
+    return Field(default=default, ge=0, le=10, allow_inf_nan=False)
+
+
+def _coefficient(*, required: bool = False):
+    """A saturation coefficient: a plain finite number, > 0 where ``required`` (no default), else >= 0 (default 0)."""
+    if required:
+        return Field(gt=0, allow_inf_nan=False)
+    return Field(default=0.0, ge=0, allow_inf_nan=False)
+
+
+class HinkkanenSpec(StrictModel):
+    """The ``[hinkkanen]`` table: the current-of-flux law in Hinkkanen et al.'s SI coefficients.
+
+    ``i_d = (a_d0 + a_dd*|d|**S + a_dq/(V + 2)*|d|**U*|q|**(V + 2)) * d`` and
+    ``i_q = (a_q0 + a_qq*|q|**T + a_dq/(U + 2)*|d|**(U + 2)*|q|**V) * q`` with ``d = psi_d - lambda_m``,
+    ``q = psi_q`` (Wb): ``a_d0 = 1/Ld``, ``a_q0 = 1/Lq`` (1/H); ``a_dd`` (A/Wb^(S+1)), ``a_qq``, ``a_dq``.
+    """
+
+    a_d0: float = _coefficient(required=True)
+    a_dd: float = _coefficient()
+    S: float = _exponent(float(DEFAULT_MOTOR.exp_d))
+    a_q0: float = _coefficient(required=True)
+    a_qq: float = _coefficient()
+    T: float = _exponent(float(DEFAULT_MOTOR.exp_q))
+    a_dq: float = _coefficient()
+    U: float = _exponent(float(DEFAULT_MOTOR.exp_dq_d))
+    V: float = _exponent(float(DEFAULT_MOTOR.exp_dq_q))
 
 
 class MotorSpec(StrictModel):
@@ -46,12 +77,21 @@ class MotorSpec(StrictModel):
     alpha_R: quantity("temperature coefficient") = float(DEFAULT_MOTOR.alpha_R)
     T_ref: quantity("temperature") = float(DEFAULT_MOTOR.T_ref)
     encoder_offset: quantity("rotor angle") = 0.0
+    sat_d: float = _coefficient()
+    sat_q: float = _coefficient()
+    sat_dq: float = _coefficient()
+    exp_d: float = _exponent(float(DEFAULT_MOTOR.exp_d))
+    exp_q: float = _exponent(float(DEFAULT_MOTOR.exp_q))
+    exp_dq_d: float = _exponent(float(DEFAULT_MOTOR.exp_dq_d))
+    exp_dq_q: float = _exponent(float(DEFAULT_MOTOR.exp_dq_q))
+    i_ref: quantity("current") = float(DEFAULT_MOTOR.i_ref)
+    hinkkanen: HinkkanenSpec | None = None
     delay_samples: float = Field(default=0.0, ge=0, le=100, allow_inf_nan=False)
     current_noise: quantity("current") | None = None
     speed_noise: quantity("speed") | None = None
     estimate: list[Literal["R", "Ld", "Lq", "lambda_m", "delay", "v_dead", "i_dead", "offset_d", "offset_q",
                            "offset_a", "offset_b", "alpha_R", "encoder_offset", "J", "B", "T_coulomb",
-                           "T_load"]] | None = None
+                           "T_load", "sat_d", "sat_q", "sat_dq"]] | None = None
 
 
 class MotorFile(BaseModel):
@@ -91,8 +131,8 @@ class MotorFile(BaseModel):
     @property
     def names(self) -> tuple[str, ...]:
         """The parameters to estimate, in drivecal's order."""
-        if self.estimate is None:
-            return ESTIMATED
+        if self.estimate is None:  # a motor without a magnet (a synchronous reluctance motor) holds lambda_m = 0
+            return ESTIMATED if float(self.motor.lambda_m) != 0.0 else tuple(n for n in ESTIMATED if n != "lambda_m")
         return tuple(n for n in ESTIMABLE if n in self.estimate)
 
 
@@ -113,35 +153,58 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
     try:
         spec = MotorSpec.model_validate(data)
     except ValidationError as exc:
-        raise explain(exc, source, "motor", ", ".join(MotorSpec.model_fields) + ", [tolerance]") from None
+        in_law = all(e["loc"][:1] == ("hinkkanen",) for e in exc.errors())  # the [hinkkanen] table's own keys
+        keys = (", ".join(HinkkanenSpec.model_fields) + " (in [hinkkanen])" if in_law
+                else ", ".join(MotorSpec.model_fields) + ", [tolerance]")
+        raise explain(exc, source, "motor", keys) from None
     if not 1 <= spec.pole_pairs <= 1000:
         shown = spec.pole_pairs if abs(spec.pole_pairs) < 10**12 else "a huge number"
         raise DrivecalError(f"{source}: 'pole_pairs' must be a whole number from 1 to 1000, got {shown}.")
-    values = spec.model_dump(exclude={"estimate", "delay_samples", "current_noise", "speed_noise"})
+    values = spec.model_dump(exclude={"estimate", "delay_samples", "current_noise", "speed_noise", "hinkkanen"})
     for key in ("current_noise", "speed_noise"):
         value = getattr(spec, key)
         if value is not None and not (math.isfinite(value) and value > 0):
             raise DrivecalError(f"{source}: '{key}' is a noise standard deviation and must be positive, got {value!r}.")
     signed = ("T_load", "offset_d", "offset_q", "offset_a", "offset_b", "T_ref", "encoder_offset")
+    zero_allowed = ("v_dead", "T_coulomb", "lambda_m") + MAGNETIC + EXPONENTS
     for name, value in values.items():
         if not math.isfinite(value):
             raise DrivecalError(f"{source}: '{name}' must be a finite number, got {value!r}.")
         if name == "v_dead" and value < 0:
             raise DrivecalError(f"{source}: 'v_dead' is a voltage magnitude and must be >= 0, got {value!r}.")
+        if name == "lambda_m" and value < 0:
+            raise DrivecalError(f"{source}: 'lambda_m' is the magnet's flux linkage and must be >= 0 (0: a "
+                                f"synchronous reluctance motor, no magnet), got {value!r}.")
         if name == "T_coulomb" and value < 0:
             raise DrivecalError(f"{source}: 'T_coulomb' is a friction torque magnitude (it acts against the speed's "
                                 f"sign) and must be >= 0, got {value!r}.")
-        if not value > 0 and name not in signed + ("v_dead", "T_coulomb"):
+        if not value > 0 and name not in signed + zero_allowed:
             raise DrivecalError(f"{source}: '{name}' must be a positive number, got {value!r}.")
     motor = MotorParams(**{k: float(v) for k, v in values.items()}, delay=float(spec.delay_samples))
+    if spec.hinkkanen is not None:
+        motor = _with_hinkkanen_law(motor, spec.hinkkanen, data, source)
     estimate = None if spec.estimate is None else tuple(spec.estimate)
     if estimate is not None and not estimate:
         raise DrivecalError(f"{source}: 'estimate' is empty; list at least one of R, Ld, Lq, lambda_m.")
-    defaulted = tuple(k for k in REQUIRED_KEYS if k not in data)
+    if estimate is not None and "lambda_m" in estimate and float(motor.lambda_m) == 0.0:
+        raise DrivecalError(f"{source}: 'estimate' names lambda_m but 'lambda_m' is 0 (no magnet); give the nominal "
+                            "flux linkage, or leave lambda_m out of 'estimate' for a synchronous reluctance motor.")
+    given = set(data) | ({"Ld", "Lq"} if spec.hinkkanen is not None else set())
+    defaulted = tuple(k for k in REQUIRED_KEYS if k not in given)
     tolerance = {} if tolerance_table is None else tolerances_of(tolerance_table, motor.all_values(), source)
     return MotorFile(motor=motor, estimate=estimate, delay_samples=spec.delay_samples, current_noise=spec.current_noise,
                      speed_noise=spec.speed_noise, source=source,
                      defaulted=defaulted, tolerance=tolerance, mechanics_given="J" in data and "B" in data)
+
+
+def _with_hinkkanen_law(motor: MotorParams, law: HinkkanenSpec, data: dict, source: str) -> MotorParams:
+    """``motor`` with the ``[hinkkanen]`` table's law (stated at the file's ``i_ref``); a key that would say it twice
+    is refused."""
+    twice = [k for k in ("Ld", "Lq") + MAGNETIC + EXPONENTS if k in data]
+    if twice:
+        raise DrivecalError(f"{source}: '{twice[0]}' and the [hinkkanen] table both give the magnetic law; leave "
+                            f"'{twice[0]}' out (Ld = 1/a_d0, Lq = 1/a_q0, the saturation from a_dd, a_qq, a_dq).")
+    return from_hinkkanen(motor, i_ref=float(motor.i_ref), **law.model_dump())
 
 
 def load_motor(path: str | Path | None) -> MotorFile:

@@ -109,8 +109,10 @@ class EffectSelection:
 
     @property
     def magnetic_model(self) -> str:
-        """``"saturating"`` when the final fit includes a term of the saturating law, else ``"linear"``."""
-        return "saturating" if set(self.included) & set(MAGNETIC_EFFECTS) else "linear"
+        """``"saturating"`` when the final fit includes a term of the saturating law or holds one (a motor file's
+        law), else ``"linear"``."""
+        fitted = bool(set(self.included) & set(MAGNETIC_EFFECTS))
+        return "saturating" if fitted or is_saturating(self.calibration.motor) else "linear"
 
     def to_dict(self) -> dict[str, Any]:
         """The result JSON's ``effects`` section (the magnetic terms among them: ``magnetics``, ``magnetic_model``)."""
