@@ -41,13 +41,45 @@ def _enable_compilation_cache() -> None:
     # One folder per kind of processor: XLA:CPU compiles for the host's
     # instruction set, and a kernel loaded on a machine without it (a home
     # folder shared between machines) crashes the process.
-    jax.config.update("jax_compilation_cache_dir", str(Path(root) / _host_kind()))
+    jax.config.update("jax_compilation_cache_dir", str(Path(root) / f"{_host_kind()}-{_CACHE_LAYOUT}"))
     # drivecal's kernels compile in well under JAX's default 1 s threshold.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     # No size limit: a limit turns on JAX's cross-process file lock around every
     # read and write, on which parallel processes queue. A kernel read while
     # another process still writes it is a truncated zlib stream, which JAX
     # rejects and recompiles (tried: cut at 30-99 %), so the lock buys nothing.
+    _keep_loadable_kernels_only()
+
+
+#: The cache folder's layout: 2 since kernels of too many object files are no longer written
+#: (earlier folders may hold such kernels, which crash the process that loads them).
+_CACHE_LAYOUT = 2
+#: Kernels of more object files than this are not written to the cache. jaxlib 0.9.2's XLA:CPU writes
+#: a kernel of many objects that crashes (SIGSEGV, no Python error) the next process that loads it: seen
+#: at 425 and 426 objects (the saturating flux model's fit), never at 416 or fewer (a dozen kernels of
+#: 280-416 objects loaded fine). Not writing them costs their compilation in every process.
+MAX_CACHED_OBJECTS = 400
+
+
+def _keep_loadable_kernels_only() -> None:
+    """Write a compiled kernel to the cache only when it has at most :data:`MAX_CACHED_OBJECTS` object files."""
+    from jax._src import compilation_cache
+
+    write = compilation_cache.put_executable_and_time
+    if getattr(write, "_drivecal_checked", False):
+        return
+
+    def checked(cache_key, module_name, executable, backend, compile_time):
+        try:
+            objects = executable.serialize().count(b"\x7fELF")
+        except Exception:  # serialisation is JAX's to report, in its own write
+            objects = 0
+        if objects > MAX_CACHED_OBJECTS:
+            return None
+        return write(cache_key, module_name, executable, backend, compile_time)
+
+    checked._drivecal_checked = True
+    compilation_cache.put_executable_and_time = checked
 
 
 def _host_kind() -> str:
