@@ -4,7 +4,9 @@ Every physical value is either a plain number in SI units or a string with a
 unit, e.g. ``R = "0.45 ohm"``, ``Ld = "3.2 mH"``. A wrong key or a unit of the
 wrong kind is refused with one sentence naming the file, the key and the fix.
 The schema is documented in docs/bench-files.md ("Motor files") and exemplified in
-``examples/``.
+``examples/``. A saturating motor states its magnetic law (``physics._magnetics``) in drivecal's
+per-unit keys (``sat_d``, ``sat_q``, ``sat_dq``, ``exp_*``, ``i_ref``) or as published, in a
+``[hinkkanen]`` table of Hinkkanen et al.'s SI coefficients (``examples/syrm_motor.toml``).
 """
 
 from __future__ import annotations
