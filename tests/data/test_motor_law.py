@@ -77,3 +77,18 @@ def test_a_motor_file_without_the_law_is_the_linear_motor_of_before():
     linear = dc.load_motor(EXAMPLES / "motor.toml")
     assert linear.motor.all_values() == dc.DEFAULT_MOTOR.all_values()
     assert not any(dataclasses.asdict(linear.motor)[n] for n in MAGNETIC)
+
+
+def test_a_held_law_makes_the_selection_saturating():
+    """A fit that holds a motor file's law (no term fitted) reports the saturating model, and shows its maps."""
+    from types import SimpleNamespace
+
+    from drivecal.selection import EffectSelection
+
+    def selection(motor):
+        return EffectSelection(calibration=SimpleNamespace(motor=motor), experiment=None, mode="none", choices=())
+
+    held = dc.load_motor(EXAMPLES / "syrm_motor.toml").motor
+    assert selection(held).magnetic_model == "saturating"
+    assert selection(dc.DEFAULT_MOTOR).magnetic_model == "linear"
+    assert selection(held).to_dict()["magnetic_model"] == "saturating"
