@@ -24,3 +24,20 @@ def test_probes_split_over_kernels_give_the_columns_of_one(monkeypatch, clean_de
     for effect in effects:
         assert columns_split[effect].shape == columns[effect].shape
         np.testing.assert_allclose(columns_split[effect], columns[effect], rtol=1e-12, atol=1e-15)
+
+
+def test_magnetic_scores_from_the_bench_effects_columns_equal_their_own(clean_default, truth):
+    """The magnetic score tests take the fitted columns the bench effects' tests computed (one kernel fewer):
+    the same statistics as with the columns computed for them alone."""
+    bench = clean_default.add_noise(0.02, 11)
+    experiment = bench.experiment()
+    names = dc.ESTIMATED
+    motor = truth.with_vector(names, truth.vector(names))
+    magnetic = tuple(_mismatch.MAGNETIC_EFFECTS)
+    joint = _mismatch.unmodelled_effects(motor, names, experiment, bench.currents, 0.02,
+                                         effects=("delay", "dead_time", *magnetic))
+    alone = _mismatch.unmodelled_effects(motor, names, experiment, bench.currents, 0.02, effects=magnetic)
+    by_effect = {e["effect"]: e for e in joint}
+    for effect in alone:
+        assert np.isfinite(effect["statistic"]), effect["effect"]
+        np.testing.assert_allclose(by_effect[effect["effect"]]["statistic"], effect["statistic"], rtol=1e-9)

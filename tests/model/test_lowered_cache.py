@@ -109,3 +109,26 @@ def test_fingerprint_covers_every_source_file_of_the_package(tmp_path, monkeypat
         assert traced._fingerprint() != before
     finally:
         traced._fingerprint.cache_clear()
+
+
+def test_python_floats_and_float64_arrays_share_one_compiled_program(monkeypatch):
+    """A motor's fields are Python floats where a file set them, float64 arrays where a fit did: one kernel.
+
+    Fails without ``_strongly_typed``: ``jit`` traces and compiles a weakly typed argument anew.
+    """
+    monkeypatch.setattr(traced, "directory", lambda: None)  # the plain call, as in the suite
+
+    traces = []
+
+    @jax.jit
+    def scaled(x, y):
+        traces.append(jax.typeof(x))  # runs once a trace
+        return x * y
+
+    y = np.arange(3.0)
+    first = traced.call(scaled, "scaled", 2.0, y)
+    second = traced.call(scaled, "scaled", jnp.asarray(2.0), y)  # weakly typed too
+    third = traced.call(scaled, "scaled", np.float64(2.0), y)
+    assert len(traces) == 1 and not traces[0].weak_type
+    for out in (second, third):
+        np.testing.assert_array_equal(out, first)

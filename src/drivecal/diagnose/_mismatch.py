@@ -117,16 +117,20 @@ def score_test(residual: np.ndarray, signature: np.ndarray, fitted: np.ndarray, 
 
 
 def _magnetic_scores(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
-                     effects: tuple[str, ...], residual: np.ndarray, sigma_hat: float) -> dict[str, tuple]:
+                     effects: tuple[str, ...], residual: np.ndarray, sigma_hat: float,
+                     fitted: np.ndarray | None = None) -> dict[str, tuple]:
     """Per magnetic effect, ``(score, motor at its best exponents, number of candidates)``.
 
     Every candidate of a term's exponents (``physics.EXPONENT_CANDIDATES``) is tested against the
-    fitted parameters' columns; each term keeps the candidate whose signature has the largest
-    statistic. The candidates' columns come from one batched rollout (``model.saturation_columns``).
+    fitted parameters' columns ``fitted`` (m, n), computed here when not given (the bench effects'
+    score tests have them: one sensitivity kernel fewer to compile); each term keeps the candidate whose
+    signature has the largest statistic. The candidates' columns come from one batched rollout
+    (``model.saturation_columns``).
     """
     if not effects:
         return {}
-    fitted, _ = effect_signatures(motor, fit_names, experiment, ())
+    if fitted is None:
+        fitted, _ = effect_signatures(motor, fit_names, experiment, ())
     probe = model_experiment(experiment, motor, MAGNETIC)
     columns = saturation_columns(motor, dataclasses.replace(probe, dead_time_substeps=1))
     best: dict[str, tuple] = {}
@@ -236,7 +240,7 @@ def unmodelled_effects(
     residual = y - np.asarray(predicted, dtype=float).reshape(-1)
     plain = tuple(e for e in effects if e not in MAGNETIC_EFFECTS)
     magnetic = tuple(e for e in effects if e in MAGNETIC_EFFECTS)
-    scores = {}
+    scores, fitted = {}, None
     if plain:
         fitted, columns = effect_signatures(motor, fit_names, base, plain)
         scores = {e: (score_test(residual, columns[e], fitted, sigma_hat), motor, 1) for e in plain}
@@ -247,7 +251,8 @@ def unmodelled_effects(
         peak = float(np.max(np.abs(np.asarray(currents, dtype=float)), initial=0.0))
         if np.isfinite(peak) and peak > 0.0:
             motor = motor.replace(i_ref=float(f"{peak:.2g}"))
-    scores.update(_magnetic_scores(motor, fit_names, base, magnetic, residual, sigma_hat))
+    # The fitted columns do not depend on i_ref (a linear motor's currents do not): the plain tests' serve.
+    scores.update(_magnetic_scores(motor, fit_names, base, magnetic, residual, sigma_hat, fitted))
     threshold = ALPHA / len(effects)
     delay = float(motor.delay)
     out = []

@@ -229,6 +229,21 @@ def _export(fn: Callable, name: str, leaves: list, treedef: Any, static: dict[st
     return _runner(exported), out_tree[0]
 
 
+def _strongly_typed(leaf: Any) -> Any:
+    """``leaf`` with a strong dtype: a Python float becomes a float64 scalar, a weakly typed JAX array a plain one.
+
+    ``jit`` compiles a program anew for each weak/strong pattern of its arguments, and a motor's fields are
+    Python floats where a file or ``replace`` set them, float64 arrays where a fit did: without this, a model
+    selection compiled its sensitivity Jacobian (~9 s) twice for every candidate model. Same dtype, same
+    numbers.
+    """
+    if isinstance(leaf, float):
+        return np.float64(leaf)
+    if getattr(leaf, "weak_type", False) and isinstance(leaf, jax.Array):
+        return jax.lax.convert_element_type(leaf, leaf.dtype)
+    return leaf
+
+
 def call(fn: Callable, name: str, *args: Any, **static: Any) -> Any:
     """``fn(*args, **static)``, traced once per machine rather than once per process.
 
@@ -244,6 +259,8 @@ def call(fn: Callable, name: str, *args: Any, **static: Any) -> Any:
     leaves, treedef = jax.tree_util.tree_flatten(args)
     if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
         return fn(*args, **static)
+    leaves = [_strongly_typed(leaf) for leaf in leaves]
+    args = jax.tree_util.tree_unflatten(treedef, leaves)
     folder = directory()
     if folder is None:
         return fn(*args, **static)
