@@ -176,18 +176,24 @@ def test_corpus_sample_holds_the_extremes():
 @needs_corpus
 @pytest.mark.slow
 def test_corpus_sample_end_to_end_within_4_se():
-    """25 real motors (the corpus's extremes first): auto-plan -> Jaxonomy engine -> fit; every estimate within
-    4 SE of the truth.
+    """The corpus's extremes and motors spread in time constant (25, less the ten that test_bench_limits.py runs
+    end to end under their real limits): auto-plan -> Jaxonomy engine -> fit; every estimate within 4 SE of the
+    truth.
 
-    4 SE: at 100 estimates a 3 SE rule would fail by chance with probability
-    0.24; 4 SE fails with 0.006. The share within 1.96 SE must also look like 95 %
-    (binomial: 100 estimates, standard deviation 2.2 %; 12 or more outside has probability 0.004).
-    25, not more: at a real inverter's sample rate every motor's plan has its own segment layout, hence its
-    own compiled fit (~20 s each on 2 cores); benchmarks/validate_corpus.py runs the whole corpus.
+    4 SE: at ~80 estimates a 3 SE rule would fail by chance with probability 0.2; 4 SE fails with 0.005.
+    The share within 1.96 SE must also look like 95 %: the count outside may exceed its binomial
+    (n estimates, p = 0.05) 99.5 % quantile only with probability 0.005.
+    Not more motors: at a real inverter's sample rate every motor's plan has its own segment layout, hence its
+    own compiled fit (~20-35 s each on 2 cores); benchmarks/validate_corpus.py runs the whole corpus.
     """
-    sample = corpus.corpus_sample(corpus.load_corpus(CORPUS), 25)
+    sample = [m for m in corpus.corpus_sample(corpus.load_corpus(CORPUS), 25) if m.name not in corpus.TEN]
+    assert len(sample) >= 15
     results = corpus.validate(sample, seed=0)
     failed = [r.name + (f" ({r.error})" if r.error else f" z={np.round(r.z, 2)}") for r in results if not r.passed]
     assert not failed, failed
-    z = np.array([r.z for r in results])
-    assert np.mean(np.abs(z) <= 1.96) >= 0.89
+    z = np.concatenate([np.ravel(r.z) for r in results])
+    outside, n = int(np.sum(np.abs(z) > 1.96)), z.size
+    # The smallest k with P(Binomial(n, 0.05) >= k) <= 0.005: more outside than that is no chance.
+    tail = [sum(math.comb(n, j) * 0.05**j * 0.95 ** (n - j) for j in range(k, n + 1)) for k in range(n + 1)]
+    allowed = next(k for k in range(n + 1) if tail[k] <= 0.005) - 1
+    assert outside <= allowed, (outside, n, allowed)

@@ -174,9 +174,7 @@ def test_cli_plan_bad_limits_exit_2_with_one_line(args, fragment, tmp_path, caps
 
 # --- ten real motors ------------------------------------------------------------------------------
 
-#: Ten motors of the corpus spanning it: R from 7 mOhm to 95 Ohm, V_dc from 12 to 1200 V, two salient ones
-#: (m030, m014), one whose time constant needs 40 kHz (m505), one whose PWM ripple needs 32 kHz (m020).
-TEN = ("m022", "m030", "m402", "m019", "m020", "m014", "m001", "m181", "m505", "m062")
+TEN = corpus.TEN
 #: The rotor clamp holds the motor's rated torque (the q-step's 0.75 of the rated current is then held under
 #: 80 % of it, less where the dead time's uncertainty needs room).
 CLAMP_SHARE = 1.0

@@ -93,6 +93,12 @@ def load_corpus(path: str | Path) -> list[CorpusMotor]:
     ]
 
 
+#: Ten motors of the corpus spanning it: R from 7 mOhm to 95 Ohm, V_dc from 12 to 1200 V, two salient ones
+#: (m030, m014), one whose time constant needs 40 kHz (m505), one whose PWM ripple needs 32 kHz (m020).
+#: tests/design/test_bench_limits.py runs each end to end with its real limits and dead time.
+TEN = ("m022", "m030", "m402", "m019", "m020", "m014", "m001", "m181", "m505", "m062")
+
+
 def corpus_sample(motors: list[CorpusMotor], size: int = 50) -> list[CorpusMotor]:
     """A fixed sample: the extremes, then motors evenly spread in electrical time constant.
 
