@@ -132,7 +132,7 @@ def _magnetic_scores(motor: MotorParams, fit_names: tuple[str, ...], experiment:
     if fitted is None:
         fitted, _ = effect_signatures(motor, fit_names, experiment, ())
     probe = model_experiment(experiment, motor, MAGNETIC)
-    columns = saturation_columns(motor, dataclasses.replace(probe, dead_time_substeps=1))
+    columns = saturation_columns(motor, _one_substep(probe))
     best: dict[str, tuple] = {}
     for e in effects:
         term = _ALL_EFFECTS[e][1][0]
@@ -142,6 +142,13 @@ def _magnetic_scores(motor: MotorParams, fit_names: tuple[str, ...], experiment:
             if e not in best or not np.isfinite(best[e][0].statistic) or score.statistic > best[e][0].statistic:
                 best[e] = (score, motor.replace(**dict(zip(names, candidate))), len(values))
     return best
+
+
+def _one_substep(experiment: Experiment) -> Experiment:
+    """The experiment for sensitivity columns at v_dead = 0: no dead-time sub-steps (they resolve the sign's turn
+    at v_dead != 0). Without the dead-time model the sub-steps do nothing: the experiment stays as it is, so
+    the fit's own kernel (same parameters, same experiment) serves rather than a second compilation."""
+    return dataclasses.replace(experiment, dead_time_substeps=1) if experiment.dead_time else experiment
 
 
 def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
@@ -156,8 +163,7 @@ def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment
     fitted = None
     for k in range(0, max(len(probes), 1), step):
         all_names = tuple(fit_names) + probes[k:k + step]
-        # Sensitivity columns at v_dead = 0 need no sub-steps (they resolve the sign's turn at v_dead != 0).
-        probe = dataclasses.replace(model_experiment(experiment, motor, all_names), dead_time_substeps=1)
+        probe = _one_substep(model_experiment(experiment, motor, all_names))
         # The currents' rows only (a measured speed as an output adds rows of its own): the tests read current
         # residuals.
         jac = np.asarray(sensitivity_jacobian(motor, probe, all_names))[: 2 * experiment.num_samples]
