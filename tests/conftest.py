@@ -34,6 +34,20 @@ def _mappings() -> int:
         return 0
 
 
+def pytest_collection_modifyitems(config, items):
+    """Files with the most ``slow`` tests first, each file's tests in their order.
+
+    pytest-xdist's ``--dist loadfile`` hands whole files to the two workers in collection order. In
+    alphabetical order the longest files (the SyRM selection, the manual's pages: 10 to 25 min each) came
+    last, and one worker ran them alone while the other had finished: the run took the longest file's
+    time more than the work needed. Longest first, the short files fill both workers' ends.
+    """
+    slow: dict[str, int] = {}
+    for item in items:
+        slow[item.fspath.strpath] = slow.get(item.fspath.strpath, 0) + (item.get_closest_marker("slow") is not None)
+    items[:] = sorted(items, key=lambda item: -slow[item.fspath.strpath])  # stable: a file's order kept
+
+
 @pytest.fixture(autouse=True)
 def _drop_compiled_kernels_before_the_map_limit():
     """Free every compiled kernel once a worker holds MAX_MAPPINGS memory mappings.
