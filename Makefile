@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DOCS_STAMP := $(VENV)/.installed-docs
 
-.PHONY: demo test docs bench install browser clean
+.PHONY: demo test test-long docs bench install browser clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -35,7 +35,11 @@ demo: $(STAMP)
 	$(BIN)/drivecal demo --out demo-output
 
 test: $(STAMP) browser
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not long"
+
+# The tests marked `long` (over ~5 min each on 2 cores; ~40 min together): the corpus end to end, the SyRM.
+test-long: $(STAMP)
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m long
 
 # The manual (mkdocs.yml, docs/) as a website in site/: the docs extra installed into .venv first.
 # --strict: a broken link or anchor, or a docstring the API reference cannot render, fails the build.

@@ -201,6 +201,7 @@ def ten_plans() -> dict:
 
 @needs_corpus
 @pytest.mark.slow
+@pytest.mark.long
 def test_ten_corpus_motors_get_plans_an_engineer_would_accept(ten_plans):
     """Sample rate of a real inverter, steps over the dead-time margin or v_dead fitted, clamp torque, speed and
     current within their limits and margins, the spin-up at 50 to 80 % of the speed limit."""
@@ -229,6 +230,7 @@ def test_ten_corpus_motors_get_plans_an_engineer_would_accept(ten_plans):
 
 @needs_corpus
 @pytest.mark.slow
+@pytest.mark.long
 def test_ten_corpus_motors_simulate_and_fit_within_4_se(ten_plans):
     """Each plan run on the Jaxonomy engine with the true motor (its dead time 10 % off the expected one where
     the plan fits v_dead), noise at the plan's current_noise, fitted from the datasheet: every parameter within

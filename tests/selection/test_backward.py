@@ -21,6 +21,7 @@ MOTOR = dc.DEFAULT_MOTOR
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_saturation_terms_standing_in_for_the_dead_time_are_dropped():
     plan = dc.Plan(dc.default_plan().segments, sample_rate=10_000.0)
     bench = pwm_bench(plan, MOTOR, delay_samples=1, t_dead=1e-6, substeps=16).add_noise(0.02, 5)

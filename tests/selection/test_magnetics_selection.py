@@ -26,6 +26,7 @@ def syrm_selection():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_saturating_synchronous_reluctance_motor_is_found_and_fitted(syrm_selection):
     truth, sel, _ = syrm_selection
     cal = sel.calibration
@@ -44,6 +45,7 @@ def test_saturating_synchronous_reluctance_motor_is_found_and_fitted(syrm_select
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_no_bench_effect_stands_in_for_the_iron(syrm_selection):
     _, sel, _ = syrm_selection
     assert not set(sel.included) & {"delay", "dead_time", "offsets"}
@@ -59,6 +61,7 @@ def test_linear_seed_motor_stays_linear(truth):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_flux_map_bands_cover_the_true_maps(syrm_selection):
     """Issue 18: the 95 % bands cover the true maps at >= 93 % of the grid points inside the tested range."""
     truth, sel, bench = syrm_selection
@@ -79,6 +82,7 @@ def test_flux_map_bands_cover_the_true_maps(syrm_selection):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_saturating_result_records_and_reports_its_maps(syrm_selection):
     from drivecal.report import build_result, render_html
 
