@@ -37,7 +37,8 @@ demo: $(STAMP)
 test: $(STAMP) browser
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not long"
 
-# The tests marked `long` (over ~5 min each on 2 cores; ~40 min together): the corpus end to end, the SyRM.
+# The tests marked `long` (over ~5 min each on 2 cores; ~50 min of the two workers' time): the corpus end to
+# end, the SyRM's default selection, the backward step on a PWM bench.
 test-long: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m long
 

@@ -38,9 +38,9 @@ def pytest_collection_modifyitems(config, items):
     """Files with the most ``slow`` tests first, each file's tests in their order.
 
     pytest-xdist's ``--dist loadfile`` hands whole files to the two workers in collection order. In
-    alphabetical order the longest files (the SyRM selection, the manual's pages: 10 to 25 min each) came
-    last, and one worker ran them alone while the other had finished: the run took the longest file's
-    time more than the work needed. Longest first, the short files fill both workers' ends.
+    alphabetical order the longest files (the selections, the manual's pages: 5 to 25 min each) came
+    last, where one worker can be left running one alone while the other has finished (seen: the backward
+    step's 5 min at the end of a full run). Longest first, the short files fill both workers' ends.
     """
     slow: dict[str, int] = {}
     for item in items:
