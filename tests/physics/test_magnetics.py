@@ -74,3 +74,19 @@ def test_linear_machine_is_the_special_case():
         np.testing.assert_allclose([float(dpsi_d), float(dpsi_q)],
                                    [float(motor.Ld) * float(di_d), float(motor.Lq) * float(di_q)], rtol=1e-10, atol=1e-9)
         np.testing.assert_allclose([float(dw), float(dth)], [float(dw_lin), float(dth_lin)], rtol=1e-10, atol=1e-9)
+
+
+def test_flux_derivatives_with_another_law_s_currents(syrm):
+    """``currents=`` puts another current-of-flux law (an independent plant's) in the same flux equations; given the
+    motor's own currents it is the motor's derivative exactly, and the currents it returns are the ones given."""
+    state, v = (0.3, -0.2, 40.0, 0.1), (12.0, -5.0)
+    own = currents_of_flux(state[0], state[1], syrm)
+    assert flux_derivatives(state, v, syrm, False, currents=own) == flux_derivatives(state, v, syrm, False)
+    other, frictionless = (1.5, -2.5), syrm.replace(B=0.0, T_load=0.0, T_coulomb=0.0)
+    (dpsi_d, dpsi_q, dw, _), currents = flux_derivatives(state, v, frictionless, False, currents=other)
+    w_e = float(syrm.pole_pairs) * state[2]
+    assert currents == other
+    assert float(dpsi_d) == pytest.approx(v[0] - float(syrm.R) * other[0] + w_e * state[1], rel=1e-14)
+    assert float(dpsi_q) == pytest.approx(v[1] - float(syrm.R) * other[1] - w_e * state[0], rel=1e-14)
+    torque = 1.5 * float(syrm.pole_pairs) * (state[0] * other[1] - state[1] * other[0])
+    assert float(dw) == pytest.approx(torque / float(syrm.J), rel=1e-12)

@@ -119,7 +119,7 @@ def flux_of_currents(i_d: Any, i_q: Any, motor: Any, iterations: int = 12) -> tu
 
 
 def flux_derivatives(state: Any, v_dq: Any, motor: Any, locked: Any, resistance: Any = None,
-                     friction: Any = None) -> tuple:
+                     friction: Any = None, currents: Any = None) -> tuple:
     """Time derivative of the saturating machine's state ``(psi_d, psi_q, w_m, theta_m)`` (Wb, Wb, rad/s, rad).
 
     Args:
@@ -130,13 +130,15 @@ def flux_derivatives(state: Any, v_dq: Any, motor: Any, locked: Any, resistance:
         resistance: R (ohm) where it differs from ``motor.R`` (a warm winding), else None.
         friction: the Coulomb and load torque (N*m) at this speed when already known, else computed
             from ``motor`` (``T_load + T_coulomb * tanh(w_m / w_coulomb)``).
+        currents: ``(i_d, i_q)`` (A) at the state from another current-of-flux law (an independent plant's),
+            else from ``motor``'s (:func:`currents_of_flux`).
 
     Returns:
         ``(dpsi_d/dt, dpsi_q/dt, dw_m/dt, dtheta_m/dt)`` (V, V, rad/s^2, rad/s) and the currents
         ``(i_d, i_q)`` (A) at the state, as ``(derivatives, currents)``.
     """
     psi_d, psi_q, w_m = state[0], state[1], state[2]
-    i_d, i_q = currents_of_flux(psi_d, psi_q, motor)
+    i_d, i_q = currents_of_flux(psi_d, psi_q, motor) if currents is None else currents
     r = motor.R if resistance is None else resistance
     w_e = motor.pole_pairs * w_m
     dpsi_d = v_dq[0] - r * i_d + w_e * psi_q
