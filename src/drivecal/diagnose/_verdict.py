@@ -2,7 +2,10 @@
 
 The criterion, kept simple on purpose so a reader can check it by hand:
 
-1. **not calibrated: the fit did not converge** when the LM solve failed.
+1. **not calibrated: the fit did not converge** when the LM solve failed. Where a saturation term's score
+   test flagged the data and no fit with the term converged to take it up, the iron saturates beyond
+   drivecal's law (the iron bridges of a PM-assisted motor saturate asymmetrically in i_d): the headline
+   names that as the most likely cause and the first detail gives its fix.
 2. **model mismatch suspected** when either
    * the residual standard deviation is well above the stated sensor noise:
      ``sigma_hat > SIGMA_RATIO_MAX * sigma_stated`` (1.5: with thousands of
@@ -156,12 +159,16 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
     # The one most likely unmodelled cause first (the score tests come most significant first), with its fix.
     causes = [e for e in res.get("unmodelled_effects") or [] if e["suspected"]]
     speed = _speed_finding(result.get("speed") or {})
+    beyond = "" if result["converged"] else _beyond_the_law(result)
     if causes:
         mismatch = True
         details += [e["message"] if not speed[1] else
                     f"the residuals carry a signature like that of {e['effect'].replace('_', ' ')} (score test p = "
                     f"{e['p_value']:.2g}), which the speed input's errors leave too: correct the speed first"
                     for e in causes]
+    if beyond:
+        mismatch = True
+        details.append(beyond)
     noise = ("the sensor noise estimated from the samples" if res.get("sigma_estimated")
              else "the stated sensor noise")
     if res and not res.get("noise_consistent", True):
@@ -203,6 +210,8 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
         details.insert(0 if speed[1] and mismatch else len(details), speed[0])
     if not result["converged"]:
         status, headline = Status.NOT_CONVERGED, f"not calibrated: the fit did not converge ({result.get('message', '')})"
+        if beyond and not causes and not speed[1]:
+            headline += f"; most likely {_BEYOND} (see the first detail for the fix)"
     elif mismatch:
         status, headline = Status.MISMATCH, "model mismatch suspected"
         if speed[1]:
@@ -216,6 +225,29 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
         if (result.get("effects") or {}).get("magnetic_model") == "saturating":
             headline += ", with magnetic saturation (the saturating law: Ld, Lq, lambda_m at zero current)"
     return {"status": status.key, "headline": headline, "details": details}
+
+
+#: The headline's words for iron that saturates beyond drivecal's law.
+_BEYOND = "magnetic saturation beyond drivecal's saturating law"
+
+
+def _beyond_the_law(result: dict[str, Any]) -> str:
+    """The finding (a detail, with its fix) where the iron saturates beyond drivecal's law, else ``""``.
+
+    Read where the fit did not converge: a term of the law left out as ``not supported`` although its score
+    test was below its level. The data show saturation, and no fit with the term took it up.
+    """
+    flagged = [c for c in (result.get("effects") or {}).get("effects", [])
+               if c["effect"] in MAGNETIC_EFFECTS and not c["included"] and c["how"] == "not supported"
+               and c["test"] == "score" and c["p_value"] is not None and c["p_threshold"] is not None
+               and c["p_value"] < c["p_threshold"]]
+    if not flagged:
+        return ""
+    tests = ", ".join(f"{c['effect'].replace('_', ' ')} p = {c['p_value']:.2g}" for c in flagged)
+    return (f"the score tests find magnetic saturation ({tests}) that no fit with drivecal's saturating law took "
+            "up: the iron saturates beyond that law (self- and cross-saturation symmetric about the magnet's flux; "
+            "the iron bridges of a PM-assisted motor saturate asymmetrically in i_d). Calibrate the small-signal values on a plan that stays where the iron is linear (a "
+            "lower current limit: drivecal plan --imax), or fit each current level on its own")
 
 
 def _speed_finding(speed: dict[str, Any]) -> tuple[str, bool]:

@@ -1,0 +1,67 @@
+"""Iron that saturates beyond drivecal's law: where the fit cannot converge and the saturation terms' score tests
+flag the data, the verdict names that (not the bench effects), with its fix.
+
+On the published PM-SyRM of Lelli et al. (ICEM 2024, doi 10.1109/ICEM60801.2024.10700403; ``helpers.blocks``),
+whose iron bridges saturate asymmetrically in i_d, drivecal's law (symmetric about the magnet's flux) cannot
+follow the currents of a multi-level locked test: neither the linear fit nor any saturating one converges.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+import drivecal as dc
+from drivecal.cli import main
+from drivecal.diagnose import verdict
+from helpers.blocks import LELLI_PM_SYRM_MACHINE, lelli_bench, lelli_small_signal
+
+#: Locked steps at several levels on each axis, both signs on d, and combined d+q steps, 10 ms each at 10 kHz:
+#: up to 18 A and -12 A on d, 18 A on q (a 540-V drive), where the PM-SyRM's incremental Lq falls fourfold.
+LEVELS = dc.Plan(tuple(dc.Segment(n, 0.01, True, v_d=v_d, v_q=v_q) for n, v_d, v_q in (
+    ("d 15 V", 15.0, 0.0), ("d 30 V", 30.0, 0.0), ("d 45 V", 45.0, 0.0), ("d -30 V", -30.0, 0.0),
+    ("q 40 V", 0.0, 40.0), ("q 80 V", 0.0, 80.0), ("q 120 V", 0.0, 120.0),
+    ("d+q", 30.0, 80.0), ("d-q", 30.0, -80.0))), sample_rate=10000.0, v_dc=540.0, current_limit=40.0)
+
+
+def _result(*, converged: bool, how: str = "not supported", p_value: float = 1e-40) -> dict:
+    """A fit's result JSON with the q-axis saturation term left out as ``how`` after a score test of ``p_value``."""
+    choice = {"effect": "saturation_q", "included": False, "how": how, "test": "score", "statistic": 180.0,
+              "dof": 1, "p_value": p_value, "p_threshold": 1e-3, "estimate": {}, "note": ""}
+    return {"converged": converged, "message": "200 LM steps", "parameters": {"R": {"identifiable": True}},
+            "residuals": {"white": False, "per_segment": [], "whiteness_p_threshold": 1e-3, "sigma_stated": 0.02,
+                          "sigma_hat": 0.6, "sigma_ratio": 30.0, "sigma_ratio_max": 1.5, "noise_consistent": False,
+                          "unmodelled_effects": []},
+            "effects": {"magnetic_model": "linear", "effects": [choice]}}
+
+
+def test_a_fit_that_cannot_converge_on_flagged_saturation_names_the_iron():
+    judged = verdict(_result(converged=False))
+    assert judged["status"] == "failed"
+    assert "most likely magnetic saturation beyond drivecal's saturating law" in judged["headline"]
+    assert judged["details"][0].startswith("the score tests find magnetic saturation (saturation q p = 1e-40)")
+    assert "drivecal plan --imax" in judged["details"][0]
+
+
+@pytest.mark.parametrize("case", [dict(converged=True), dict(converged=False, p_value=0.2),
+                                  dict(converged=False, how="masked"), dict(converged=False, how="not identifiable")])
+def test_no_such_finding_without_its_evidence(case):
+    judged = verdict(_result(**case))
+    assert "beyond drivecal" not in judged["headline"] and not any("beyond that law" in d for d in judged["details"])
+
+
+@pytest.mark.slow  # the engine bench (~15 s) and a saturating selection (~2 min, compiling)
+def test_pm_syrm_beyond_the_law_is_named_and_no_bench_effect_blamed(tmp_path, capsys):
+    lam, ld, lq = lelli_small_signal()
+    motor = tmp_path / "pm_syrm.toml"
+    motor.write_text(f"R = {LELLI_PM_SYRM_MACHINE['R']}\nLd = {ld!r}\nLq = {lq!r}\nlambda_m = {lam!r}\n"
+                     f"pole_pairs = {LELLI_PM_SYRM_MACHINE['pole_pairs']}\nJ = {LELLI_PM_SYRM_MACHINE['J']}\n")
+    data = lelli_bench(LEVELS).add_noise(0.02, 3).save(tmp_path / "pm_syrm.csv")
+    status = main(["fit", str(data), "--motor", str(motor), "--noise", "0.02", "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    assert status == 5 and doc["verdict"]["status"] == "failed"
+    assert "magnetic saturation beyond drivecal's saturating law" in doc["verdict"]["headline"]
+    choices = {c["effect"]: c for c in doc["effects"]["effects"]}
+    assert not any(c["included"] for c in choices.values())  # no bench effect stands in for the iron
+    assert choices["saturation_q"]["p_value"] < 1e-10
