@@ -24,7 +24,7 @@ from drivecal.design import (SATURATED_INDUCTANCE_FRACTION, SATURATION_LEVELS, S
 from drivecal.identify import magnetic_reasons
 from drivecal.model import model_experiment
 from drivecal.physics import MAGNETIC, from_hinkkanen
-from helpers.blocks import LELLI_PM_SYRM_MACHINE, lelli_bench, lelli_small_signal
+from helpers.blocks import lelli_bench, lelli_motor_file
 
 #: Hinkkanen et al. 2017's 6.7-kW SyRM (doi 10.1109/TIA.2016.2644624), as in tests/selection.
 HINKKANEN_SYRM = dict(a_d0=17.4, a_dd=373.0, S=5, a_q0=52.1, a_qq=658.0, T=1, a_dq=1120.0, U=1, V=0)
@@ -235,10 +235,7 @@ def test_plan_for_the_published_pm_syrm_stays_under_its_limit_on_its_own_law(tmp
     Its incremental Lq falls from 150 mH to 31 mH at 12 A and its Ld, with the bridge, from 30 mH to 17 mH at
     +/-12 A: the plan identifies drivecal's law (rank full) and never exceeds its current limit.
     """
-    lam, ld, lq = lelli_small_signal()
-    motor = tmp_path / "pm_syrm.toml"
-    motor.write_text(f"R = {LELLI_PM_SYRM_MACHINE['R']}\nLd = {ld!r}\nLq = {lq!r}\nlambda_m = {lam!r}\n"
-                     f"pole_pairs = {LELLI_PM_SYRM_MACHINE['pole_pairs']}\nJ = {LELLI_PM_SYRM_MACHINE['J']}\n")
+    motor = lelli_motor_file(tmp_path / "pm_syrm.toml")
     out, names = tmp_path / "plan.toml", dc.ESTIMATED + MAGNETIC
     args = ["plan", "--motor", str(motor), "--vdc", "540", "--imax", "20", "--estimate", ",".join(names)]
     assert main(args + ["--json", "--out", str(out)]) == 0

@@ -15,7 +15,7 @@ import pytest
 import drivecal as dc
 from drivecal.cli import main
 from drivecal.diagnose import verdict
-from helpers.blocks import LELLI_PM_SYRM_MACHINE, lelli_bench, lelli_small_signal
+from helpers.blocks import lelli_bench, lelli_motor_file
 
 #: Locked steps at several levels on each axis, both signs on d, and combined d+q steps, 10 ms each at 10 kHz:
 #: up to 18 A and -12 A on d, 18 A on q (a 540-V drive), where the PM-SyRM's incremental Lq falls fourfold.
@@ -53,10 +53,7 @@ def test_no_such_finding_without_its_evidence(case):
 
 @pytest.mark.slow  # the engine bench (~15 s) and a saturating selection (~2 min, compiling)
 def test_pm_syrm_beyond_the_law_is_named_and_no_bench_effect_blamed(tmp_path, capsys):
-    lam, ld, lq = lelli_small_signal()
-    motor = tmp_path / "pm_syrm.toml"
-    motor.write_text(f"R = {LELLI_PM_SYRM_MACHINE['R']}\nLd = {ld!r}\nLq = {lq!r}\nlambda_m = {lam!r}\n"
-                     f"pole_pairs = {LELLI_PM_SYRM_MACHINE['pole_pairs']}\nJ = {LELLI_PM_SYRM_MACHINE['J']}\n")
+    motor = lelli_motor_file(tmp_path / "pm_syrm.toml")
     data = lelli_bench(LEVELS).add_noise(0.02, 3).save(tmp_path / "pm_syrm.csv")
     status = main(["fit", str(data), "--motor", str(motor), "--noise", "0.02", "--json"])
     doc = json.loads(capsys.readouterr().out)

@@ -8,9 +8,11 @@ current-of-flux law, which drivecal's law cannot express, is written here from i
 
 from __future__ import annotations
 
+import functools
+from pathlib import Path
 from typing import Any
 
-from drivecal.physics import MotorParams, dq_derivatives, flux_derivatives, with_d_flux
+from drivecal.physics import MotorParams, dq_derivatives, flux_derivatives, flux_torque, with_d_flux
 
 #: The PMSM block's parameters that are motor fields.
 _BLOCK_PARAMETERS = ("R", "Ld", "Lq", "lambda_m", "pole_pairs", "J", "B", "T_load")
@@ -88,9 +90,17 @@ def lelli_small_signal(law: dict = LELLI_PM_SYRM) -> tuple[float, float, float]:
     """The law's magnet flux and small-signal inductances: ``(lambda_m, Ld, Lq)`` (Wb, H, H).
 
     ``lambda_m`` is the d flux at zero current (Newton's method on ``i_d(psi_d, 0) = 0``), ``Ld`` and ``Lq`` the
-    inverse of ``d(i_d, i_q)/d(psi_d, psi_q)`` there (diagonal: the law is even in ``psi_q``).
+    inverse of ``d(i_d, i_q)/d(psi_d, psi_q)`` there (diagonal: the law is even in ``psi_q``). Computed once per law.
     """
+    return _small_signal(tuple(law.items()))
+
+
+@functools.cache
+def _small_signal(items: tuple) -> tuple[float, float, float]:
+    """:func:`lelli_small_signal` of the law ``dict(items)``."""
     import jax
+
+    law = dict(items)
 
     def d_current(psi_d):
         return lelli_currents(psi_d, 0.0, law)[0]
@@ -158,7 +168,7 @@ def lelli_pm_syrm_block(*, locked: bool = False, name: str = "pmsm", B: float = 
         def _torque_output(self, _time, state, *_inputs, **p):
             x = state.continuous_state
             i_d, i_q = lelli_currents(x[0], x[1])
-            return 1.5 * p["pole_pairs"] * (x[0] * i_q - x[1] * i_d)
+            return flux_torque(x[0], x[1], i_d, i_q, p["pole_pairs"])
 
     return LelliPMSyRM(R=machine["R"], Ld=ld, Lq=lq, lambda_m=lam, pole_pairs=machine["pole_pairs"],
                        J=machine["J"], B=B, T_load=0.0, locked=bool(locked), name=name)
@@ -178,3 +188,12 @@ def lelli_bench(plan) -> Any:
         t, x = run_held_voltages(lelli_pm_syrm_block(locked=seg.locked), v, plan.sample_rate, label=seg.name)
         segments.append(dc.SegmentData(seg.name, seg.locked, t, v, x[:, :2].copy()))
     return dc.BenchData(tuple(segments), plan.sample_rate, source="PM-SyRM bench (Lelli et al.'s law)")
+
+
+def lelli_motor_file(path: str | Path) -> Path:
+    """Write the PM-SyRM's motor file as a user knows the motor: its small-signal values, R, pole pairs and J."""
+    lam, ld, lq = lelli_small_signal()
+    m = LELLI_PM_SYRM_MACHINE
+    Path(path).write_text(f"R = {m['R']}\nLd = {ld!r}\nLq = {lq!r}\nlambda_m = {lam!r}\n"
+                          f"pole_pairs = {m['pole_pairs']}\nJ = {m['J']}\n")
+    return Path(path)

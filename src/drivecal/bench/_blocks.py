@@ -109,7 +109,7 @@ def flux_pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: 
     import jax.numpy as jnp
     from jaxonomy.library.drives import PMSM
 
-    from ..physics import currents_of_flux, flux_derivatives, flux_of_currents
+    from ..physics import currents_of_flux, flux_derivatives, flux_of_currents, flux_torque
 
     law = {n: float(getattr(motor, n)) for n in _LAW}
     start = jnp.zeros(4) if initial_state is None else jnp.asarray(initial_state, dtype=float)
@@ -141,7 +141,7 @@ def flux_pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: 
         def _torque_output(self, _time, state, *_inputs, **p):
             x = state.continuous_state
             i_d, i_q = currents_of_flux(x[0], x[1], machine(p))
-            return 1.5 * p["pole_pairs"] * (x[0] * i_q - x[1] * i_d)
+            return flux_torque(x[0], x[1], i_d, i_q, p["pole_pairs"])
 
     return FluxPMSM(
         R=float(motor.R), Ld=float(motor.Ld), Lq=float(motor.Lq), lambda_m=float(motor.lambda_m),

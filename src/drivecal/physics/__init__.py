@@ -4,7 +4,7 @@ voltage error and delay, the magnetic saturation (flux linkages as states), the 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
 from ._inverter import bridge_error, dead_time_error, stable_dead_width, switching_ripple
 from ._magnetics import (EXPONENT_CANDIDATES, EXPONENTS, MAGNETIC, currents_of_flux, flux_derivatives,
-                         flux_of_currents, from_hinkkanen, hinkkanen_coefficients, hinkkanen_law,
+                         flux_of_currents, flux_torque, from_hinkkanen, hinkkanen_coefficients, hinkkanen_law,
                          incremental_inductances,
                          is_saturating)
 from ._motor import (ADDITIVE_SCALE, DEFAULT_MOTOR, DESCRIPTIONS, DqCoefficients, ESTIMABLE, ESTIMATED, FIXED,
@@ -15,7 +15,7 @@ from ._sensors import delayed, encoder_frame, rotor_frame, sensor_offsets, with_
 from ._transforms import abc_to_dq, clarke, dq_to_abc, inverse_clarke, inverse_park, park
 
 __all__ = ["EXPONENT_CANDIDATES", "EXPONENTS", "MAGNETIC", "currents_of_flux", "flux_derivatives",
-           "flux_of_currents", "from_hinkkanen", "hinkkanen_coefficients", "hinkkanen_law", "incremental_inductances",
+           "flux_of_currents", "flux_torque", "from_hinkkanen", "hinkkanen_coefficients", "hinkkanen_law", "incremental_inductances",
            "is_saturating", "ADDITIVE_SCALE", "DEFAULT_MOTOR", "DESCRIPTIONS", "DqCoefficients", "ESTIMABLE", "ESTIMATED", "FIXED",
            "MECHANICAL", "MotorParams", "NUISANCE", "SETTINGS", "UNITS", "abc_to_dq", "clarke", "coulomb_friction",
            "bridge_error", "dead_time_error", "stable_dead_width", "switching_ripple", "delayed", "encoder_frame",

@@ -118,6 +118,12 @@ def flux_of_currents(i_d: Any, i_q: Any, motor: Any, iterations: int = 12) -> tu
     return psi_d, psi_q
 
 
+def flux_torque(psi_d: Any, psi_q: Any, i_d: Any, i_q: Any, pole_pairs: Any) -> Any:
+    """The air-gap torque (N*m) at flux linkages ``psi_d``, ``psi_q`` (Wb) and currents ``i_d``, ``i_q`` (A):
+    ``1.5 * pole_pairs * (psi_d*i_q - psi_q*i_d)``, whatever the law that ties them."""
+    return 1.5 * pole_pairs * (psi_d * i_q - psi_q * i_d)
+
+
 def flux_derivatives(state: Any, v_dq: Any, motor: Any, locked: Any, resistance: Any = None,
                      friction: Any = None, currents: Any = None) -> tuple:
     """Time derivative of the saturating machine's state ``(psi_d, psi_q, w_m, theta_m)`` (Wb, Wb, rad/s, rad).
@@ -143,7 +149,7 @@ def flux_derivatives(state: Any, v_dq: Any, motor: Any, locked: Any, resistance:
     w_e = motor.pole_pairs * w_m
     dpsi_d = v_dq[0] - r * i_d + w_e * psi_q
     dpsi_q = v_dq[1] - r * i_q - w_e * psi_d
-    torque = 1.5 * motor.pole_pairs * (psi_d * i_q - psi_q * i_d)
+    torque = flux_torque(psi_d, psi_q, i_d, i_q, motor.pole_pairs)
     if friction is None:
         friction = motor.T_load + coulomb_friction(w_m, motor.T_coulomb, motor.w_coulomb)
     free = 1.0 - jnp.asarray(locked, dtype=float)
