@@ -13,7 +13,8 @@ import pytest
 
 import drivecal as dc
 from drivecal.cli import main
-from drivecal.physics import MAGNETIC, from_hinkkanen
+from drivecal.physics import MAGNETIC, from_hinkkanen, from_lelli
+from helpers.blocks import LELLI_PM_SYRM, LELLI_PM_SYRM_MACHINE
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 #: Hinkkanen et al. 2017's 6.7-kW SyRM (doi 10.1109/TIA.2016.2644624), as in examples/syrm_motor.toml.
@@ -29,6 +30,19 @@ def test_example_syrm_motor_file_is_hinkkanens_published_law():
         assert loaded[name] == pytest.approx(value, rel=1e-14, abs=0.0), name
     assert motor_file.defaulted == ()  # Ld, Lq come from the law
     assert motor_file.names == ("R", "Ld", "Lq")  # no magnet: lambda_m held at zero, not fitted
+
+
+def test_example_pm_syrm_motor_file_is_lellis_published_law():
+    """examples/pm_syrm_motor.toml: the 5.5-kW PM-SyRM of Lelli et al. (ICEM 2024) with its iron bridge."""
+    motor_file = dc.load_motor(EXAMPLES / "pm_syrm_motor.toml")
+    law = {k: float(v) for k, v in LELLI_PM_SYRM.items()}
+    truth = from_lelli(dc.MotorParams(**LELLI_PM_SYRM_MACHINE), i_ref=10.0, **law)
+    loaded, expected = motor_file.motor.all_values(), truth.all_values()
+    for name, value in expected.items():
+        assert loaded[name] == pytest.approx(value, rel=1e-14, abs=0.0), name
+    assert loaded["sat_b"] > 0 and loaded["sat_at_zero"] == 1.0 and loaded["psi_n"] == 0.804
+    assert motor_file.defaulted == ()  # Ld, Lq and lambda_m come from the law
+    assert dc.motor_from_dict({"estimate": ["R", "sat_b"]}, "m.toml").names == ("R", "sat_b")
 
 
 def test_per_unit_law_keys_and_saturation_to_estimate():
@@ -49,6 +63,12 @@ def test_per_unit_law_keys_and_saturation_to_estimate():
                                                 "are a_d0, a_dd, S, a_q0, a_qq, T, a_dq, U, V (in [hinkkanen])."),
     ({"hinkkanen": {**HINKKANEN_SYRM, "a_q0": 0}}, "m.toml: 'hinkkanen.a_q0': Input should be greater than 0."),
     ({"hinkkanen": 3}, "m.toml: 'hinkkanen': Input should be a valid dictionary"),
+    ({"lambda_m": 0.5, "lelli": LELLI_PM_SYRM}, "m.toml: 'lambda_m' and the [lelli] table both give the magnetic law"),
+    ({"hinkkanen": HINKKANEN_SYRM, "lelli": LELLI_PM_SYRM}, "m.toml: the [hinkkanen] and [lelli] tables both give"),
+    ({"lelli": {**LELLI_PM_SYRM, "psi_n": 0}}, "m.toml: 'lelli.psi_n': Input should be greater than 0."),
+    ({"lelli": {**LELLI_PM_SYRM, "X": 1}}, "m.toml: unknown key 'lelli.X' in the motor file; the known keys are "
+                                          "a_d0, a_dd, S, a_q0, a_qq, T, a_dq, U, V, a_b, a_bp, k_q, psi_n, W (in [lelli])."),
+    ({"sat_at_zero": 0.5}, "m.toml: 'sat_at_zero': Input should be 0 or 1"),
     ({"sat_d": -0.1}, "m.toml: 'sat_d': Input should be greater than or equal to 0."),
     ({"exp_q": 11}, "m.toml: 'exp_q': Input should be less than or equal to 10."),
     ({"i_ref": "3 V"}, "m.toml: 'i_ref': '3 V' has unit 'V' but a current in A is expected"),

@@ -9,7 +9,7 @@ import pytest
 
 import drivecal as dc
 from drivecal.physics import (currents_of_flux, dq_derivatives, flux_derivatives, flux_of_currents, from_hinkkanen,
-                              hinkkanen_coefficients, incremental_inductances)
+                              from_lelli, hinkkanen_coefficients, incremental_inductances)
 
 #: The 6.7-kW synchronous reluctance motor of Hinkkanen et al., "Sensorless self-commissioning of synchronous
 #: reluctance motors at standstill without rotor locking", IEEE Trans. Ind. Appl. 53(3), 2017
@@ -90,3 +90,44 @@ def test_flux_derivatives_with_another_law_s_currents(syrm):
     assert float(dpsi_q) == pytest.approx(v[1] - float(syrm.R) * other[1] - w_e * state[0], rel=1e-14)
     torque = 1.5 * float(syrm.pole_pairs) * (state[0] * other[1] - state[1] * other[0])
     assert float(dw) == pytest.approx(torque / float(syrm.J), rel=1e-12)
+
+
+def test_published_pm_syrm_law_is_drivecal_s_law_exactly():
+    """Lelli et al.'s PM-SyRM law (ICEM 2024, doi 10.1109/ICEM60801.2024.10700403; motulator's 5.5-kW
+    coefficients), written independently in ``helpers.blocks``, is drivecal's law with the iron bridge, and
+    its Ld, Lq, lambda_m are still the small-signal values at zero current."""
+    from helpers.blocks import LELLI_PM_SYRM, lelli_currents, lelli_small_signal
+
+    motor = from_lelli(dc.MotorParams(), i_ref=10.0, **{k: float(v) for k, v in LELLI_PM_SYRM.items()})
+    lam, ld, lq = lelli_small_signal()
+    assert (float(motor.lambda_m), float(motor.Ld), float(motor.Lq)) == pytest.approx((lam, ld, lq), rel=1e-12)
+    rng = np.random.default_rng(2)
+    psi = rng.uniform([0.0, -1.3], [1.0, 1.3], size=(300, 2)).T  # currents up to ~50 A on either axis
+    got = np.asarray(currents_of_flux(jnp.asarray(psi[0]), jnp.asarray(psi[1]), motor))
+    np.testing.assert_allclose(got, np.asarray(lelli_currents(psi[0], psi[1])), rtol=0, atol=1e-12)
+    at_rest = flux_of_currents(jnp.zeros(()), jnp.zeros(()), motor)
+    assert float(at_rest[0]) == pytest.approx(lam, abs=1e-14) and float(at_rest[1]) == 0.0
+    l_dd, l_dq, l_qq = (float(x) for x in incremental_inductances(*at_rest, motor))
+    assert (l_dd, l_dq, l_qq) == pytest.approx((ld, 0.0, lq), rel=1e-12, abs=1e-15)
+    # The bridge saturates asymmetrically in i_d: the incremental Ld at -12 A differs from that at +12 A.
+    lower, upper = (float(incremental_inductances(*flux_of_currents(jnp.asarray(i), jnp.zeros(()), motor), motor)[0])
+                    for i in (-12.0, 12.0))
+    assert abs(lower - upper) > 0.02 * ld
+
+
+@pytest.mark.parametrize("motor", [
+    dc.MotorParams().replace(sat_d=0.4, sat_q=0.8, sat_dq=0.3, i_ref=10.0, exp_d=3.0, exp_dq_q=0.0),
+    from_hinkkanen(dc.MotorParams(lambda_m=0.0), i_ref=20.0, **SYRM)])
+def test_without_a_bridge_the_law_about_the_magnet_is_unchanged_to_the_last_bit(motor):
+    """With sat_b = 0 and sat_at_zero = 0 the bridge's terms and the centre's correction are exact zeros: the
+    currents are the self- and cross-saturation terms alone, bit for bit (the results of earlier releases)."""
+    rng = np.random.default_rng(3)
+    psi = jnp.asarray(rng.uniform([0.0, -0.1], [0.2, 0.1], size=(200, 2)).T)
+    got = currents_of_flux(psi[0], psi[1], motor)
+    terms = currents_of_flux(psi[0], psi[1], motor, bridge=False)  # the terms alone, as before the bridge
+    assert all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(got, terms))
+    # and about zero flux without any saturation term it is the linear machine about the magnet
+    linear = dc.MotorParams(sat_at_zero=1.0)
+    i_d, i_q = currents_of_flux(psi[0], psi[1], linear)
+    np.testing.assert_allclose(np.asarray(i_d), np.asarray((psi[0] - linear.lambda_m) / linear.Ld), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(i_q), np.asarray(psi[1] / linear.Lq), rtol=1e-12)

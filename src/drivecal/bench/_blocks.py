@@ -8,10 +8,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..physics import MAGNETIC, EXPONENTS, MotorParams, is_saturating
+from ..physics import BRIDGE, BRIDGE_SHAPE, EXPONENTS, MAGNETIC, MotorParams, is_saturating
 
 #: The fields of the saturating law that the flux-state block holds as constants.
-_LAW = MAGNETIC + EXPONENTS + ("i_ref",)
+_LAW = MAGNETIC + EXPONENTS + ("i_ref",) + BRIDGE + BRIDGE_SHAPE
 #: The block's parameters in the order of ``jaxonomy.library.drives.PMSM``'s signature.
 _BLOCK_PARAMETERS = ("R", "Ld", "Lq", "lambda_m", "pole_pairs", "J", "B", "T_load")
 
@@ -109,9 +109,10 @@ def flux_pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: 
     import jax.numpy as jnp
     from jaxonomy.library.drives import PMSM
 
-    from ..physics import currents_of_flux, flux_derivatives, flux_of_currents, flux_torque
+    from ..physics import currents_of_flux, flux_derivatives, flux_of_currents, flux_torque, has_bridge
 
     law = {n: float(getattr(motor, n)) for n in _LAW}
+    whole = has_bridge(motor)  # the whole law only where it has a bridge or terms about zero flux (same currents)
     start = jnp.zeros(4) if initial_state is None else jnp.asarray(initial_state, dtype=float)
 
     def machine(p):
@@ -124,23 +125,24 @@ def flux_pmsm_block(motor: MotorParams, *, locked: bool = False, initial_state: 
         def initialize(self, R, Ld, Lq, lambda_m, pole_pairs, J, B, T_load, initial_state=None, locked=False,
                        enable_load_port=False):
             m = machine(dict(R=R, Ld=Ld, Lq=Lq, lambda_m=lambda_m, pole_pairs=pole_pairs, J=J, B=B, T_load=T_load))
-            psi_d, psi_q = flux_of_currents(start[0], start[1], m)
+            psi_d, psi_q = flux_of_currents(start[0], start[1], m, bridge=whole)
             self.declare_continuous_state(default_value=jnp.stack([psi_d, psi_q, start[2], start[3]]), ode=self._ode)
 
         def _state_output(self, _time, state, *_inputs, **p):
             x = state.continuous_state
-            i_d, i_q = currents_of_flux(x[0], x[1], machine(p))
+            i_d, i_q = currents_of_flux(x[0], x[1], machine(p), bridge=whole)
             return jnp.stack([i_d, i_q, x[2], x[3]])
 
         def _ode(self, _time, state, *inputs, **p):
             m = machine(p)
             friction = inputs[1] if self._enable_load_port else m.T_load
-            d, _ = flux_derivatives(state.continuous_state, inputs[0], m, self._locked, friction=friction)
+            d, _ = flux_derivatives(state.continuous_state, inputs[0], m, self._locked, friction=friction,
+                                    bridge=whole)
             return jnp.stack(d)
 
         def _torque_output(self, _time, state, *_inputs, **p):
             x = state.continuous_state
-            i_d, i_q = currents_of_flux(x[0], x[1], machine(p))
+            i_d, i_q = currents_of_flux(x[0], x[1], machine(p), bridge=whole)
             return flux_torque(x[0], x[1], i_d, i_q, p["pole_pairs"])
 
     return FluxPMSM(

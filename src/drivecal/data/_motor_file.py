@@ -5,8 +5,10 @@ unit, e.g. ``R = "0.45 ohm"``, ``Ld = "3.2 mH"``. A wrong key or a unit of the
 wrong kind is refused with one sentence naming the file, the key and the fix.
 The schema is documented in docs/bench-files.md ("Motor files") and exemplified in
 ``examples/``. A saturating motor states its magnetic law (``physics._magnetics``) in drivecal's
-per-unit keys (``sat_d``, ``sat_q``, ``sat_dq``, ``exp_*``, ``i_ref``) or as published, in a
-``[hinkkanen]`` table of Hinkkanen et al.'s SI coefficients (``examples/syrm_motor.toml``).
+per-unit keys (``sat_d``, ``sat_q``, ``sat_dq``, ``exp_*``, ``i_ref``; a PM-assisted motor's iron bridge:
+``sat_b``, ``exp_b``, ``sat_bp``, ``k_q``, ``psi_n``, ``sat_at_zero``) or as published: a ``[hinkkanen]`` table of
+Hinkkanen et al.'s SI coefficients (``examples/syrm_motor.toml``), or a ``[lelli]`` table of Lelli et al.'s
+(``examples/pm_syrm_motor.toml``).
 """
 
 from __future__ import annotations
@@ -18,7 +20,8 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from ..errors import DrivecalError
-from ..physics import DEFAULT_MOTOR, ESTIMABLE, ESTIMATED, EXPONENTS, MAGNETIC, MotorParams, from_hinkkanen
+from ..physics import (BRIDGE, BRIDGE_SHAPE, DEFAULT_MOTOR, ESTIMABLE, ESTIMATED, EXPONENTS, MAGNETIC, MotorParams,
+                       from_hinkkanen, from_lelli)
 from ._tolerance import Tolerance, tolerances_of
 from .._units import StrictModel, explain, quantity, read_toml
 
@@ -59,6 +62,22 @@ class HinkkanenSpec(StrictModel):
     V: float = _exponent(float(DEFAULT_MOTOR.exp_dq_q))
 
 
+class LelliSpec(HinkkanenSpec):
+    """The ``[lelli]`` table: a PM-assisted motor's current-of-flux law in Lelli et al.'s SI coefficients.
+
+    Hinkkanen's terms about zero flux (the keys of ``[hinkkanen]``, with ``psi_d`` for ``d``) plus the iron
+    bridge ``G_b*(psi_d - psi_n)`` on d and ``k_q*G_b*psi_q`` on q, ``G_b = a_b*s**W / (1 + a_bp*s**W)``,
+    ``s = sqrt((psi_d - psi_n)**2 + k_q*psi_q**2)``: ``a_b`` (A/Wb^(W+1)), ``a_bp`` (1/Wb^W), ``k_q`` (-),
+    ``psi_n`` (Wb). Ld, Lq and lambda_m follow from the law (``physics.from_lelli``).
+    """
+
+    a_b: float = _coefficient(required=True)
+    a_bp: float = _coefficient()
+    k_q: float = _coefficient()
+    psi_n: float = Field(gt=0, allow_inf_nan=False)
+    W: float = _exponent(float(DEFAULT_MOTOR.exp_b))
+
+
 class MotorSpec(StrictModel):
     R: quantity("resistance") = float(DEFAULT_MOTOR.R)
     Ld: quantity("inductance") = float(DEFAULT_MOTOR.Ld)
@@ -87,13 +106,20 @@ class MotorSpec(StrictModel):
     exp_dq_d: float = _exponent(float(DEFAULT_MOTOR.exp_dq_d))
     exp_dq_q: float = _exponent(float(DEFAULT_MOTOR.exp_dq_q))
     i_ref: quantity("current") = float(DEFAULT_MOTOR.i_ref)
+    sat_b: float = _coefficient()
+    exp_b: float = _exponent(float(DEFAULT_MOTOR.exp_b))
+    sat_bp: float = _coefficient()
+    k_q: float = _coefficient()
+    psi_n: quantity("flux") = 0.0
+    sat_at_zero: Literal[0, 1] = 0
     hinkkanen: HinkkanenSpec | None = None
+    lelli: LelliSpec | None = None
     delay_samples: float = Field(default=0.0, ge=0, le=100, allow_inf_nan=False)
     current_noise: quantity("current") | None = None
     speed_noise: quantity("speed") | None = None
     estimate: list[Literal["R", "Ld", "Lq", "lambda_m", "delay", "v_dead", "i_dead", "offset_d", "offset_q",
                            "offset_a", "offset_b", "alpha_R", "encoder_offset", "J", "B", "T_coulomb",
-                           "T_load", "sat_d", "sat_q", "sat_dq"]] | None = None
+                           "T_load", "sat_d", "sat_q", "sat_dq", "sat_b"]] | None = None
 
 
 class MotorFile(BaseModel):
@@ -155,20 +181,22 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
     try:
         spec = MotorSpec.model_validate(data)
     except ValidationError as exc:
-        in_law = all(e["loc"][:1] == ("hinkkanen",) for e in exc.errors())  # the [hinkkanen] table's own keys
-        keys = (", ".join(HinkkanenSpec.model_fields) + " (in [hinkkanen])" if in_law
+        tables = {"hinkkanen": HinkkanenSpec, "lelli": LelliSpec}
+        in_law = [t for t in tables if all(e["loc"][:1] == (t,) for e in exc.errors())]  # a law table's own keys
+        keys = (", ".join(tables[in_law[0]].model_fields) + f" (in [{in_law[0]}])" if in_law
                 else ", ".join(MotorSpec.model_fields) + ", [tolerance]")
         raise explain(exc, source, "motor", keys) from None
     if not 1 <= spec.pole_pairs <= 1000:
         shown = spec.pole_pairs if abs(spec.pole_pairs) < 10**12 else "a huge number"
         raise DrivecalError(f"{source}: 'pole_pairs' must be a whole number from 1 to 1000, got {shown}.")
-    values = spec.model_dump(exclude={"estimate", "delay_samples", "current_noise", "speed_noise", "hinkkanen"})
+    values = spec.model_dump(exclude={"estimate", "delay_samples", "current_noise", "speed_noise", "hinkkanen",
+                                      "lelli"})
     for key in ("current_noise", "speed_noise"):
         value = getattr(spec, key)
         if value is not None and not (math.isfinite(value) and value > 0):
             raise DrivecalError(f"{source}: '{key}' is a noise standard deviation and must be positive, got {value!r}.")
     signed = ("T_load", "offset_d", "offset_q", "offset_a", "offset_b", "T_ref", "encoder_offset")
-    zero_allowed = ("v_dead", "T_coulomb", "lambda_m") + MAGNETIC + EXPONENTS
+    zero_allowed = ("v_dead", "T_coulomb", "lambda_m") + MAGNETIC + EXPONENTS + BRIDGE + BRIDGE_SHAPE
     for name, value in values.items():
         if not math.isfinite(value):
             raise DrivecalError(f"{source}: '{name}' must be a finite number, got {value!r}.")
@@ -183,15 +211,19 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
         if not value > 0 and name not in signed + zero_allowed:
             raise DrivecalError(f"{source}: '{name}' must be a positive number, got {value!r}.")
     motor = MotorParams(**{k: float(v) for k, v in values.items()}, delay=float(spec.delay_samples))
-    if spec.hinkkanen is not None:
-        motor = _with_hinkkanen_law(motor, spec.hinkkanen, data, source)
+    if spec.hinkkanen is not None and spec.lelli is not None:
+        raise DrivecalError(f"{source}: the [hinkkanen] and [lelli] tables both give the magnetic law; keep one "
+                            "([lelli] for a PM-assisted motor with iron bridges, [hinkkanen] for one without).")
+    if spec.hinkkanen is not None or spec.lelli is not None:
+        motor = _with_published_law(motor, spec.hinkkanen or spec.lelli, data, source)
     estimate = None if spec.estimate is None else tuple(spec.estimate)
     if estimate is not None and not estimate:
         raise DrivecalError(f"{source}: 'estimate' is empty; list at least one of R, Ld, Lq, lambda_m.")
     if estimate is not None and "lambda_m" in estimate and float(motor.lambda_m) == 0.0:
         raise DrivecalError(f"{source}: 'estimate' names lambda_m but 'lambda_m' is 0 (no magnet); give the nominal "
                             "flux linkage, or leave lambda_m out of 'estimate' for a synchronous reluctance motor.")
-    given = set(data) | ({"Ld", "Lq"} if spec.hinkkanen is not None else set())
+    given = set(data) | ({"Ld", "Lq"} if spec.hinkkanen is not None else set()) | (
+        {"Ld", "Lq", "lambda_m"} if spec.lelli is not None else set())
     defaulted = tuple(k for k in REQUIRED_KEYS if k not in given)
     tolerance = {} if tolerance_table is None else tolerances_of(tolerance_table, motor.all_values(), source)
     return MotorFile(motor=motor, estimate=estimate, delay_samples=spec.delay_samples, current_noise=spec.current_noise,
@@ -199,14 +231,20 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
                      defaulted=defaulted, tolerance=tolerance, mechanics_given="J" in data and "B" in data)
 
 
-def _with_hinkkanen_law(motor: MotorParams, law: HinkkanenSpec, data: dict, source: str) -> MotorParams:
-    """``motor`` with the ``[hinkkanen]`` table's law (stated at the file's ``i_ref``); a key that would say it twice
-    is refused."""
-    twice = [k for k in ("Ld", "Lq") + MAGNETIC + EXPONENTS if k in data]
+def _with_published_law(motor: MotorParams, law: HinkkanenSpec, data: dict, source: str) -> MotorParams:
+    """``motor`` with a ``[hinkkanen]`` or ``[lelli]`` table's law (stated at the file's ``i_ref``); a key that would
+    say it twice is refused."""
+    lelli = isinstance(law, LelliSpec)
+    table = "lelli" if lelli else "hinkkanen"
+    own = ("Ld", "Lq") + MAGNETIC + EXPONENTS + ((("lambda_m",) + BRIDGE + BRIDGE_SHAPE) if lelli else ())
+    twice = [k for k in own if k in data]
     if twice:
-        raise DrivecalError(f"{source}: '{twice[0]}' and the [hinkkanen] table both give the magnetic law; leave "
-                            f"'{twice[0]}' out (Ld = 1/a_d0, Lq = 1/a_q0, the saturation from a_dd, a_qq, a_dq).")
-    return from_hinkkanen(motor, i_ref=float(motor.i_ref), **law.model_dump())
+        given = ("Ld, Lq and lambda_m from the law at zero current, the saturation and the bridge from the "
+                 "table" if lelli else "Ld = 1/a_d0, Lq = 1/a_q0, the saturation from a_dd, a_qq, a_dq")
+        raise DrivecalError(f"{source}: '{twice[0]}' and the [{table}] table both give the magnetic law; leave "
+                            f"'{twice[0]}' out ({given}).")
+    build = from_lelli if lelli else from_hinkkanen
+    return build(motor, i_ref=float(motor.i_ref), **law.model_dump())
 
 
 def load_motor(path: str | Path | None) -> MotorFile:

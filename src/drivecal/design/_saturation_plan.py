@@ -50,7 +50,7 @@ import numpy as np
 from ._bench_limits import LOCKED_TIME_CONSTANTS, MIN_SEGMENT_SAMPLES, VOLTAGE_FRACTION
 from ..identify import COND_MAX, CORR_MAX, WEAK_RELATIVE_CI, Identifiability, magnetic_reasons, sensitivity_jacobian
 from ..model import Experiment, model_experiment
-from ..physics import MAGNETIC, MotorParams, hinkkanen_law, is_saturating, search_scale
+from ..physics import BRIDGE, MAGNETIC, MotorParams, hinkkanen_law, is_saturating, search_scale
 from ..plan import Plan, Segment
 
 #: The steady currents of the locked steps on a saturating axis, as fractions of the top level.
@@ -129,7 +129,8 @@ def margin_note(peak: float, current_limit: float, scaled: float | None) -> str:
 
 def law_note(motor: MotorParams) -> str:
     """The design report's note that the peaks are the saturating law's."""
-    terms = ", ".join(f"{n} = {float(getattr(motor, n)):.4g}" for n in MAGNETIC)
+    shown = MAGNETIC + tuple(n for n in BRIDGE if float(getattr(motor, n)) != 0.0)
+    terms = ", ".join(f"{n} = {float(getattr(motor, n)):.4g}" for n in shown)
     return (f"peak currents predicted with the motor's saturating magnetic law ({terms} at i_ref = "
             f"{float(motor.i_ref):.4g} A)")
 

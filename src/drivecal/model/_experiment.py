@@ -93,6 +93,10 @@ class Experiment(eqx.Module):
             the flux linkages and takes the currents from the law
             (``physics.currents_of_flux``, ``_flux``). Switched on by
             :func:`model_experiment` when a saturation coefficient is estimated or non-zero.
+        bridge: the saturating law has a PM-assisted motor's iron bridge or its terms about zero flux
+            (static; ``physics.has_bridge``): the rollout evaluates the whole law, else the law about the
+            magnet without the bridge (the same currents, with less work). Switched on by
+            :func:`model_experiment` when ``sat_b`` is estimated or either is non-zero.
     """
 
     voltages: jnp.ndarray
@@ -118,6 +122,7 @@ class Experiment(eqx.Module):
     fractional_delay: bool = eqx.field(static=True, default=False)
     linearised_tangents: bool = eqx.field(static=True, default=True)
     saturating: bool = eqx.field(static=True, default=False)
+    bridge: bool = eqx.field(static=True, default=False)
 
     @property
     def num_samples(self) -> int:
@@ -327,13 +332,15 @@ def model_experiment(experiment: Experiment, motor: MotorParams, names: tuple[st
     encoder = experiment.encoder_offset or (used("encoder_offset") and experiment.has_angle)
     delay = np.asarray(motor.delay)
     fractional = experiment.fractional_delay or "delay" in names or bool(np.any(delay != np.floor(delay)))
-    saturating = experiment.saturating or any(used(n) for n in MAGNETIC)
-    if (dead_time, phase_offsets, encoder, fractional, saturating) == (
+    bridge = experiment.bridge or used("sat_b") or used("sat_at_zero")
+    saturating = experiment.saturating or bridge or any(used(n) for n in MAGNETIC)
+    if (dead_time, phase_offsets, encoder, fractional, saturating, bridge) == (
             experiment.dead_time, experiment.phase_offsets, experiment.encoder_offset, experiment.fractional_delay,
-            experiment.saturating):
+            experiment.saturating, experiment.bridge):
         return experiment
     return dataclasses.replace(experiment, dead_time=dead_time, phase_offsets=phase_offsets,
-                               encoder_offset=encoder, fractional_delay=fractional, saturating=saturating)
+                               encoder_offset=encoder, fractional_delay=fractional, saturating=saturating,
+                               bridge=bridge)
 
 
 def in_rotor_frame(motor: MotorParams, experiment: Experiment) -> Experiment:
@@ -366,7 +373,8 @@ def stack_experiments(experiments: list[Experiment]) -> Experiment:
     """
     # Static model switches must agree across the batch: switch on what any one needs.
     flags = {f: any(getattr(e, f) for e in experiments)
-             for f in ("dead_time", "phase_offsets", "encoder_offset", "thermal", "fractional_delay", "saturating")}
+             for f in ("dead_time", "phase_offsets", "encoder_offset", "thermal", "fractional_delay", "saturating",
+                       "bridge")}
     # The segment layout is shared by the batch; where the datasets' layouts differ, none is used.
     layouts = {e.segments for e in experiments}
     flags["segments"] = layouts.pop() if len(layouts) == 1 else None

@@ -20,7 +20,7 @@ import numpy as np
 from ._experiment import Experiment, chain_starts
 from ._steps import _quadratic, _rk4, _substeps, _with_delay
 from ..physics import (MotorParams, bridge_error, currents_of_flux, flux_derivatives, flux_of_currents,
-                       stable_dead_width)
+                       magnet_point, stable_dead_width)
 from ..physics import resistance_at
 
 
@@ -32,7 +32,11 @@ def rollout_flux(motor: MotorParams, experiment: Experiment, keep: int, conducti
     dt = experiment.sample_period
     experiment, before = _with_delay(motor, experiment)
     v_before, fraction = before if before is not None else (experiment.voltages, 0.0)
-    psi_d0, psi_q0 = flux_of_currents(experiment.initial_state[:, 0], experiment.initial_state[:, 1], motor)
+    # The whole law only where it has an iron bridge or terms about zero flux; its correction at the magnet's
+    # flux once, outside the scan.
+    law = magnet_point(motor) if experiment.bridge else False
+    psi_d0, psi_q0 = flux_of_currents(experiment.initial_state[:, 0], experiment.initial_state[:, 1], motor,
+                                      bridge=law)
     start_flux = jnp.stack([psi_d0, psi_q0, experiment.initial_state[:, 2], experiment.initial_state[:, 3]], axis=1)
     substeps = experiment.dead_time_substeps if experiment.dead_time else 1
     pieces_per_sample = 1 if before is None else 2
@@ -51,11 +55,11 @@ def rollout_flux(motor: MotorParams, experiment: Experiment, keep: int, conducti
                 state = (state[0], state[1], jnp.where(speed_input > 0, w_measured, state[2]), state[3])
                 applied = v
                 if experiment.dead_time:
-                    i_d, i_q = currents_of_flux(state[0], state[1], motor)
+                    i_d, i_q = currents_of_flux(state[0], state[1], motor, bridge=law)
                     e_d, e_q = bridge_error(v[0], v[1], i_d, i_q, theta_e_start + motor.pole_pairs * state[3],
                                             motor.Ld, motor.Lq, dt, motor.v_dead, motor.i_dead, width)
                     applied = (v[0] + e_d, v[1] + e_q)
-                d, _ = flux_derivatives(state, applied, motor, locked, resistance=r)
+                d, _ = flux_derivatives(state, applied, motor, locked, resistance=r, bridge=law)
                 return on * d[0], on * d[1], (1.0 - speed_input) * d[2], d[3]
             return f
 
@@ -67,7 +71,7 @@ def rollout_flux(motor: MotorParams, experiment: Experiment, keep: int, conducti
 
         x_next = _substeps(advance, x, pieces[:pieces_per_sample], substeps)
         x_next = (x_next[0], x_next[1], jnp.where(speed_input > 0, speed[2], x_next[2]), x_next[3])
-        i_d, i_q = currents_of_flux(x[0], x[1], motor)
+        i_d, i_q = currents_of_flux(x[0], x[1], motor, bridge=law)
         return x_next, jnp.stack((on * i_d, on * i_q, x[2], x[3])[:keep])
 
     inputs = (experiment.voltages, v_before, experiment.locked, chain_starts(experiment), start_flux,

@@ -30,6 +30,11 @@ import numpy as np
 MAGNETIC: tuple[str, ...] = ("sat_d", "sat_q", "sat_dq")
 #: The saturating law's exponents (Hinkkanen's S, T, U, V): settings, chosen among ``_magnetics.EXPONENT_CANDIDATES``.
 EXPONENTS: tuple[str, ...] = ("exp_d", "exp_q", "exp_dq_d", "exp_dq_q")
+#: The iron bridge of a PM-assisted motor (Lelli et al.; ``_magnetics``): its saturation coefficient (per unit; 0: no
+#: bridge), estimable when named. Not among :data:`MAGNETIC`: the automatic model choice does not try it.
+BRIDGE: tuple[str, ...] = ("sat_b",)
+#: The bridge's shape and the centre of the self- and cross-saturation terms: settings of the law (``_magnetics``).
+BRIDGE_SHAPE: tuple[str, ...] = ("exp_b", "sat_bp", "k_q", "psi_n", "sat_at_zero")
 
 #: Parameters a calibration estimates by default, in this order.
 ESTIMATED: tuple[str, ...] = ("R", "Ld", "Lq", "lambda_m")
@@ -47,9 +52,9 @@ NUISANCE: tuple[str, ...] = ("delay", "v_dead", "i_dead", "offset_d", "offset_q"
 MECHANICAL: tuple[str, ...] = ("J", "B", "T_coulomb", "T_load")
 #: Every parameter a fit may estimate, in drivecal's order (the saturation coefficients last: see
 #: ``_magnetics``; zero in a linear machine).
-ESTIMABLE: tuple[str, ...] = ESTIMATED + NUISANCE + MECHANICAL + MAGNETIC
+ESTIMABLE: tuple[str, ...] = ESTIMATED + NUISANCE + MECHANICAL + MAGNETIC + BRIDGE
 #: Settings of the models, never estimated (the saturation law's exponents are chosen among candidates).
-SETTINGS: tuple[str, ...] = ("T_ref", "w_coulomb") + EXPONENTS + ("i_ref",)
+SETTINGS: tuple[str, ...] = ("T_ref", "w_coulomb") + EXPONENTS + ("i_ref",) + BRIDGE_SHAPE
 #: Parameters that may be zero or negative: searched additively around the
 #: prior in steps of this size (their unit), not as ``ln(theta/prior)``.
 ADDITIVE_SCALE: dict[str, float] = {
@@ -65,6 +70,7 @@ ADDITIVE_SCALE: dict[str, float] = {
     "sat_d": 0.1,
     "sat_q": 0.1,
     "sat_dq": 0.1,
+    "sat_b": 0.1,
 }
 
 #: SI unit of every parameter, for tables and JSON.
@@ -97,6 +103,12 @@ UNITS: dict[str, str] = {
     "exp_dq_d": "-",
     "exp_dq_q": "-",
     "i_ref": "A",
+    "sat_b": "-",
+    "exp_b": "-",
+    "sat_bp": "-",
+    "k_q": "-",
+    "psi_n": "Wb",
+    "sat_at_zero": "-",
 }
 
 #: One-line meaning of every parameter.
@@ -129,6 +141,12 @@ DESCRIPTIONS: dict[str, str] = {
     "exp_dq_d": "d exponent of the cross-saturation (Hinkkanen's U)",
     "exp_dq_q": "q exponent of the cross-saturation (Hinkkanen's V)",
     "i_ref": "reference current of the saturation coefficients",
+    "sat_b": "iron-bridge saturation of a PM-assisted motor (per unit at i_ref)",
+    "exp_b": "exponent of the iron bridge's saturation (Lelli's W)",
+    "sat_bp": "the iron bridge's own saturation limit (Lelli's a_bp, per unit at i_ref)",
+    "k_q": "weight of the q flux in the iron bridge's saturation (Lelli's k_q)",
+    "psi_n": "flux of the magnet's Norton equivalent that the iron bridge carries (Lelli's psi_n)",
+    "sat_at_zero": "1: self- and cross-saturation written about zero flux (Hinkkanen's form); 0: about the magnet's",
 }
 
 
@@ -180,6 +198,13 @@ class MotorParams(eqx.Module):
             U, V; settings).
         i_ref: the current (A) at which the saturation coefficients are stated
             (``sat_d = 1``: the d-axis secant inductance halved at i_ref).
+        sat_b: the iron bridge's saturation (dimensionless; 0: no bridge) of a PM-assisted motor
+            (Lelli et al.'s law in ``_magnetics``), per unit as ``sat_d``.
+        exp_b, sat_bp, k_q, psi_n: the bridge's shape (settings): its exponent (Lelli's W), its own
+            saturation (Lelli's a_bp, per unit), the weight of the q flux in it (k_q, -) and the flux (Wb)
+            of the magnet's Norton equivalent it carries.
+        sat_at_zero: 1 where the self- and cross-saturation terms are written about zero flux (Hinkkanen's
+            and Lelli's form), 0 (drivecal's) about the magnet's flux ``lambda_m`` (a setting).
 
     The defaults are the 48 V interior PMSM of the drivecal tutorial bench on
     an ideal inverter and ideal sensors.
@@ -213,6 +238,12 @@ class MotorParams(eqx.Module):
     exp_dq_d: Any = 1.0
     exp_dq_q: Any = 1.0
     i_ref: Any = 1.0
+    sat_b: Any = 0.0
+    exp_b: Any = 2.0
+    sat_bp: Any = 0.0
+    k_q: Any = 0.0
+    psi_n: Any = 0.0
+    sat_at_zero: Any = 0.0
 
     def replace(self, **changes: Any) -> MotorParams:
         """A copy with the named fields changed, e.g. ``motor.replace(R=0.5)``."""

@@ -60,7 +60,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import DrivecalError
-from ..physics import MAGNETIC, flux_of_currents, incremental_inductances, is_saturating
+from ..physics import BRIDGE, MAGNETIC, flux_of_currents, incremental_inductances, is_saturating
 from ..results import Calibration
 from ._firmware_loop import MIN_PHASE_MARGIN, design_gains, loop_figures, reachable
 
@@ -75,7 +75,7 @@ SPECS = {"bandwidth": ("--bandwidth", "Hz"), "crossover": ("--crossover", "Hz"),
 #: The parameters the gains are made of.
 _GAIN_PARAMS = ("R", "Ld", "Lq")
 #: What the incremental inductances at an operating point are made of (where estimated).
-_FLUX_PARAMS = ("Ld", "Lq", "lambda_m") + MAGNETIC
+_FLUX_PARAMS = ("Ld", "Lq", "lambda_m") + MAGNETIC + BRIDGE
 #: An operating point past this multiple of a saturating fit's ``i_ref`` (its data's peak |i|, to two
 #: significant digits, so up to ~5 % below it) is an extrapolation of the fitted flux law.
 EXTRAPOLATION_MARGIN = 1.05
@@ -483,7 +483,7 @@ def design_current_loop(
                          for a, b in zip(gains_of(hi), gains_of(lo))]
         names = ["R"] + l_names + keys[2:]
         jac = np.concatenate([jac[:, :1], jac[:, 1:2] * l_slope[None, :], jac[:, 2:]], axis=1)
-        size = [1.0 if p == "delay" else max(abs(est[p]), 1.0) if p in MAGNETIC else abs(est[p]) for p in names]
+        size = [1.0 if p == "delay" else max(abs(est[p]), 1.0) if p in MAGNETIC + BRIDGE else abs(est[p]) for p in names]
         uses = np.abs(jac) * np.array(size) > 1e-7 * np.abs([[kp], [ki]])
         known = np.array([p in fit_idx for p in names])
         fitted = [fit_idx[p] for p in names if p in fit_idx]

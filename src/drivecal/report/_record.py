@@ -15,7 +15,7 @@ from ..data import BenchData, Tolerance
 from ..diagnose import fit_diagnostics
 from ..maps import flux_maps
 from ..model import Experiment
-from ..physics import MAGNETIC, is_saturating
+from ..physics import BRIDGE, MAGNETIC, is_saturating
 from ..plan import Plan, plan_to_dict
 from ..results import NOT_RECORDED, Calibration, Status, bench_sha256, file_sha256, judge_spec, result_document
 
@@ -87,6 +87,6 @@ def _maps_section(calibration: Calibration, bench: BenchData, given: Any) -> Any
     """The ``flux_maps`` section: ``given``, else computed where the calibrated law saturates, else not recorded."""
     if given is not None:
         return given
-    if not (is_saturating(calibration.motor) or set(MAGNETIC) & set(calibration.names)):
+    if not (is_saturating(calibration.motor) or set(MAGNETIC + BRIDGE) & set(calibration.names)):
         return NOT_RECORDED
     return flux_maps(calibration, bench.currents).to_dict()

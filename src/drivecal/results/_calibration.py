@@ -16,7 +16,7 @@ import numpy as np
 from .._stats import t_ppf
 from .._units import estimate_cells, format_quantity, format_value
 from ..identify import Identifiability
-from ..physics import ADDITIVE_SCALE, EXPONENTS, FIXED, MAGNETIC, MECHANICAL, NUISANCE, UNITS, MotorParams
+from ..physics import ADDITIVE_SCALE, BRIDGE, EXPONENTS, FIXED, MAGNETIC, MECHANICAL, NUISANCE, UNITS, MotorParams
 from .._status import solver_message
 from ._record import json_ready, validate_fit
 from ._verdict import Verdict
@@ -405,13 +405,18 @@ class Calibration:
     def _magnetic_lines(self) -> list[str]:
         """The saturating law's settings, where the calibrated motor saturates (else nothing)."""
         m = self.motor
-        if not (set(MAGNETIC) & set(self.names)) and not any(float(getattr(m, n)) != 0.0 for n in MAGNETIC):
+        terms = MAGNETIC + BRIDGE
+        if not (set(terms) & set(self.names)) and not any(float(getattr(m, n)) != 0.0 for n in terms):
             return []
         exps = ", ".join(f"{n} = {float(getattr(m, n)):g}" for n in EXPONENTS)
-        return ["[[Magnetic law]]",
-                "    self- and cross-saturation (Hinkkanen 2017) about the magnet's flux; Ld, Lq at zero current",
-                f"    exponents {exps}; coefficients per unit at i_ref = {float(m.i_ref):g} A",
-                "    maps with 95 % bands: drivecal.maps.flux_maps(cal, bench.currents)"]
+        centre = "zero flux" if float(m.sat_at_zero) else "the magnet's flux"
+        lines = ["[[Magnetic law]]",
+                 f"    self- and cross-saturation (Hinkkanen 2017) about {centre}; Ld, Lq at zero current",
+                 f"    exponents {exps}; coefficients per unit at i_ref = {float(m.i_ref):g} A"]
+        if float(m.sat_b) != 0.0 or "sat_b" in self.names:
+            lines.append(f"    iron bridge (Lelli 2024): exp_b = {float(m.exp_b):g}, sat_bp = {float(m.sat_bp):.4g}, "
+                         f"k_q = {float(m.k_q):.4g}, psi_n = {float(m.psi_n):.4g} Wb")
+        return lines + ["    maps with 95 % bands: drivecal.maps.flux_maps(cal, bench.currents)"]
 
     def _repr_html_(self) -> str:
         """Jupyter: the summary table of the HTML report."""
