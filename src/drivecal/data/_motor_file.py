@@ -119,7 +119,8 @@ class MotorSpec(StrictModel):
     speed_noise: quantity("speed") | None = None
     estimate: list[Literal["R", "Ld", "Lq", "lambda_m", "delay", "v_dead", "i_dead", "offset_d", "offset_q",
                            "offset_a", "offset_b", "alpha_R", "encoder_offset", "J", "B", "T_coulomb",
-                           "T_load", "sat_d", "sat_q", "sat_dq", "sat_b"]] | None = None
+                           "T_load", "sat_d", "sat_q", "sat_dq", "sat_b", "sat_bp", "k_q",
+                           "psi_n"]] | None = None
 
 
 class MotorFile(BaseModel):

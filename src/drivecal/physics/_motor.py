@@ -31,10 +31,12 @@ MAGNETIC: tuple[str, ...] = ("sat_d", "sat_q", "sat_dq")
 #: The saturating law's exponents (Hinkkanen's S, T, U, V): settings, chosen among ``_magnetics.EXPONENT_CANDIDATES``.
 EXPONENTS: tuple[str, ...] = ("exp_d", "exp_q", "exp_dq_d", "exp_dq_q")
 #: The iron bridge of a PM-assisted motor (Lelli et al.; ``_magnetics``): its saturation coefficient (per unit; 0: no
-#: bridge), estimable when named. Not among :data:`MAGNETIC`: the automatic model choice does not try it.
-BRIDGE: tuple[str, ...] = ("sat_b",)
-#: The bridge's shape and the centre of the self- and cross-saturation terms: settings of the law (``_magnetics``).
-BRIDGE_SHAPE: tuple[str, ...] = ("exp_b", "sat_bp", "k_q", "psi_n", "sat_at_zero")
+#: bridge) and its shape (its own saturation, the q flux's weight in it, the magnet flux it carries), estimable when
+#: named (the shape acts only where ``sat_b`` is non-zero). Not among :data:`MAGNETIC`: the automatic model choice
+#: does not try them.
+BRIDGE: tuple[str, ...] = ("sat_b", "sat_bp", "k_q", "psi_n")
+#: The bridge's exponent and the centre of the self- and cross-saturation terms: settings of the law.
+BRIDGE_SHAPE: tuple[str, ...] = ("exp_b", "sat_at_zero")
 
 #: Parameters a calibration estimates by default, in this order.
 ESTIMATED: tuple[str, ...] = ("R", "Ld", "Lq", "lambda_m")
@@ -71,6 +73,9 @@ ADDITIVE_SCALE: dict[str, float] = {
     "sat_q": 0.1,
     "sat_dq": 0.1,
     "sat_b": 0.1,
+    "sat_bp": 0.1,
+    "k_q": 0.1,
+    "psi_n": 0.05,
 }
 
 #: SI unit of every parameter, for tables and JSON.
@@ -200,7 +205,7 @@ class MotorParams(eqx.Module):
             (``sat_d = 1``: the d-axis secant inductance halved at i_ref).
         sat_b: the iron bridge's saturation (dimensionless; 0: no bridge) of a PM-assisted motor
             (Lelli et al.'s law in ``_magnetics``), per unit as ``sat_d``.
-        exp_b, sat_bp, k_q, psi_n: the bridge's shape (settings): its exponent (Lelli's W), its own
+        exp_b, sat_bp, k_q, psi_n: the bridge's shape: its exponent (Lelli's W, a setting), its own
             saturation (Lelli's a_bp, per unit), the weight of the q flux in it (k_q, -) and the flux (Wb)
             of the magnet's Norton equivalent it carries.
         sat_at_zero: 1 where the self- and cross-saturation terms are written about zero flux (Hinkkanen's
