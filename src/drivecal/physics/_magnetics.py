@@ -306,10 +306,13 @@ def from_lelli(motor: Any, *, a_d0: float, a_dd: float, S: float, a_q0: float, a
     at zero current and its ``Ld``, ``Lq`` the small-signal inductances there (Newton's method on the
     published law); the module's law then equals the published one (to rounding).
     """
-    published = _per_unit(motor, 1.0 / a_d0, 1.0 / a_q0, i_ref, a_dd, S, a_qq, T, a_dq, U, V)
-    flux = published.Ld * i_ref
-    published = published.replace(lambda_m=0.0, sat_at_zero=1.0, sat_b=a_b * published.Ld * flux ** W,
-                                  sat_bp=a_bp * flux ** W, k_q=float(k_q), psi_n=float(psi_n), exp_b=float(W))
+    def with_bridge(ld: float, lq: float, lambda_m: float) -> Any:  # the bridge per unit at the scale Ld * i_ref
+        flux = ld * i_ref
+        return _per_unit(motor, ld, lq, i_ref, a_dd, S, a_qq, T, a_dq, U, V).replace(
+            lambda_m=lambda_m, sat_at_zero=1.0, sat_b=a_b * ld * flux ** W, sat_bp=a_bp * flux ** W, k_q=float(k_q),
+            psi_n=float(psi_n), exp_b=float(W))
+
+    published = with_bridge(1.0 / a_d0, 1.0 / a_q0, 0.0)  # the published law itself: its terms, no correction
 
     def law(psi_d, psi_q):
         h = _hinkkanen_terms(psi_d, psi_q, published, 0.0)
@@ -321,8 +324,4 @@ def from_lelli(motor: Any, *, a_d0: float, a_dd: float, S: float, a_q0: float, a
         (i_d, _), (slope, _) = jax.jvp(law, (jnp.asarray(psi), jnp.asarray(0.0)), (jnp.asarray(1.0), jnp.asarray(0.0)))
         psi -= float(i_d) / float(slope)
     _, (inv_ld, inv_lq) = jax.jvp(law, (jnp.asarray(psi), jnp.asarray(0.0)), (jnp.asarray(1.0), jnp.asarray(1.0)))
-    ld, lq = 1.0 / float(inv_ld), 1.0 / float(inv_lq)
-    out = _per_unit(motor, ld, lq, i_ref, a_dd, S, a_qq, T, a_dq, U, V)
-    flux = ld * i_ref
-    return out.replace(lambda_m=psi, sat_at_zero=1.0, sat_b=a_b * ld * flux ** W, sat_bp=a_bp * flux ** W,
-                       k_q=float(k_q), psi_n=float(psi_n), exp_b=float(W))
+    return with_bridge(1.0 / float(inv_ld), 1.0 / float(inv_lq), psi)
