@@ -245,10 +245,12 @@ def _beyond_the_law(result: dict[str, Any]) -> str:
         return ""
     tests = ", ".join(f"{c['effect'].replace('_', ' ')} p = {c['p_value']:.2g}" for c in flagged)
     return (f"the score tests find magnetic saturation ({tests}) that no fit with drivecal's saturating law took "
-            "up: the iron saturates beyond that law (self- and cross-saturation symmetric about the magnet's flux; "
-            "the iron bridges of a PM-assisted motor saturate asymmetrically in i_d). Calibrate the small-signal "
-            "values on a plan that stays where the iron is linear (a lower current limit: drivecal plan --imax), "
-            "or fit each current level on its own")
+            "up: the iron saturates beyond the law the model choice tries (self- and cross-saturation symmetric "
+            "about the magnet's flux; the iron bridges of a PM-assisted motor saturate asymmetrically in i_d). "
+            "Calibrate the small-signal values on a plan that stays where the iron is linear (a lower current "
+            "limit: drivecal plan --imax), or fit each current level on its own; for a PM-assisted motor, state "
+            "the law with its iron bridge in the motor file (a [lelli] table, or sat_at_zero = 1 with sat_b, "
+            "sat_bp, k_q, psi_n and the saturation terms listed in estimate: docs/bench-effects.md)")
 
 
 def _speed_finding(speed: dict[str, Any]) -> tuple[str, bool]:
