@@ -15,14 +15,10 @@ import pytest
 import drivecal as dc
 from drivecal.cli import main
 from drivecal.diagnose import verdict
-from helpers.blocks import lelli_bench, lelli_motor_file
+from helpers.blocks import lelli_bench, lelli_levels, lelli_motor_file
 
-#: Locked steps at several levels on each axis, both signs on d, and combined d+q steps, 10 ms each at 10 kHz:
-#: up to 18 A and -12 A on d, 18 A on q (a 540-V drive), where the PM-SyRM's incremental Lq falls fourfold.
-LEVELS = dc.Plan(tuple(dc.Segment(n, 0.01, True, v_d=v_d, v_q=v_q) for n, v_d, v_q in (
-    ("d 15 V", 15.0, 0.0), ("d 30 V", 30.0, 0.0), ("d 45 V", 45.0, 0.0), ("d -30 V", -30.0, 0.0),
-    ("q 40 V", 0.0, 40.0), ("q 80 V", 0.0, 80.0), ("q 120 V", 0.0, 120.0),
-    ("d+q", 30.0, 80.0), ("d-q", 30.0, -80.0))), sample_rate=10000.0, v_dc=540.0, current_limit=40.0)
+#: The PM-SyRM's multi-level locked plan (helpers.blocks.lelli_levels): to 18 A and -12 A on d, 18 A on q.
+LEVELS = lelli_levels()
 
 
 def _result(*, converged: bool, how: str = "not supported", p_value: float = 1e-40) -> dict:

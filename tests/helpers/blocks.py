@@ -190,6 +190,18 @@ def lelli_bench(plan) -> Any:
     return dc.BenchData(tuple(segments), plan.sample_rate, source="PM-SyRM bench (Lelli et al.'s law)")
 
 
+def lelli_levels() -> Any:
+    """The PM-SyRM's multi-level locked plan (a ``drivecal.Plan``): locked steps at several levels on each axis, both
+    signs on d, and combined d+q steps, 10 ms each at 10 kHz; up to 18 A and -12 A on d and 18 A on q (a 540-V
+    drive), where its incremental Lq falls fourfold."""
+    import drivecal as dc
+
+    return dc.Plan(tuple(dc.Segment(n, 0.01, True, v_d=v_d, v_q=v_q) for n, v_d, v_q in (
+        ("d 15 V", 15.0, 0.0), ("d 30 V", 30.0, 0.0), ("d 45 V", 45.0, 0.0), ("d -30 V", -30.0, 0.0),
+        ("q 40 V", 0.0, 40.0), ("q 80 V", 0.0, 80.0), ("q 120 V", 0.0, 120.0),
+        ("d+q", 30.0, 80.0), ("d-q", 30.0, -80.0))), sample_rate=10000.0, v_dc=540.0, current_limit=40.0)
+
+
 def lelli_motor_file(path: str | Path) -> Path:
     """Write the PM-SyRM's motor file as a user knows the motor: its small-signal values, R, pole pairs and J."""
     lam, ld, lq = lelli_small_signal()

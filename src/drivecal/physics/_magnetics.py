@@ -65,9 +65,14 @@ EXPONENT_CANDIDATES: dict[str, tuple[tuple[str, ...], tuple[tuple[float, ...], .
 }
 
 
+def _any_nonzero(motor: Any, names: tuple[str, ...]) -> bool:
+    """Whether any of ``motor``'s fields ``names`` is non-zero anywhere (host-side, any batch shape)."""
+    return any(bool(np.any(np.asarray(getattr(motor, n)) != 0.0)) for n in names)
+
+
 def is_saturating(motor: Any) -> bool:
     """Whether any saturation coefficient of ``motor`` is non-zero (host-side, any batch shape)."""
-    return any(bool(np.any(np.asarray(getattr(motor, n)) != 0.0)) for n in MAGNETIC + BRIDGE)
+    return _any_nonzero(motor, MAGNETIC + BRIDGE)
 
 
 def _power(x: Any, e: Any) -> Any:
@@ -141,7 +146,7 @@ def magnet_point(motor: Any) -> MagnetPoint:
 def has_bridge(motor: Any) -> bool:
     """Whether ``motor``'s law has an iron bridge or its terms about zero flux (host-side, any batch shape): where
     not, :func:`currents_of_flux` with ``bridge=False`` gives the same currents with less work."""
-    return any(bool(np.any(np.asarray(getattr(motor, n)) != 0.0)) for n in ("sat_b", "sat_at_zero"))
+    return _any_nonzero(motor, ("sat_b", "sat_at_zero"))
 
 
 def currents_of_flux(psi_d: Any, psi_q: Any, motor: Any, bridge: Any = True) -> tuple[Any, Any]:
@@ -314,10 +319,8 @@ def from_lelli(motor: Any, *, a_d0: float, a_dd: float, S: float, a_q0: float, a
 
     published = with_bridge(1.0 / a_d0, 1.0 / a_q0, 0.0)  # the published law itself: its terms, no correction
 
-    def law(psi_d, psi_q):
-        h = _hinkkanen_terms(psi_d, psi_q, published, 0.0)
-        b = _bridge_terms(psi_d, psi_q, published)
-        return h[0] + b[0], h[1] + b[1]
+    def law(psi_d, psi_q):  # no correction at the magnet: the published law as it stands
+        return currents_of_flux(psi_d, psi_q, published, bridge=MagnetPoint(0.0, 0.0, 0.0, 0.0))
 
     psi = float(psi_n)
     for _ in range(60):
