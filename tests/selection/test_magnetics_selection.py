@@ -12,8 +12,10 @@ import drivecal as dc
 from drivecal.bench import HINKKANEN_SYRM, engine_bench, hinkkanen_syrm
 from drivecal.bench import SATURATION_LEVELS_PLAN as LEVELS
 from drivecal.maps import flux_maps
-from drivecal.physics import from_hinkkanen
+from drivecal.physics import EXPONENTS, from_hinkkanen, from_lelli
+from drivecal.report import build_result
 from drivecal.selection import select_effects
+from helpers.blocks import LELLI_PM_SYRM, LELLI_PM_SYRM_MACHINE, lelli_bench, lelli_levels, lelli_small_signal
 
 
 @pytest.fixture(scope="module")
@@ -90,6 +92,55 @@ def test_saturating_result_records_and_reports_its_maps(syrm_selection):
     doc = build_result(sel.calibration, bench, effects=sel.to_dict())
     assert doc["flux_maps"]["saturating"] and "[[Magnetic law]]" in str(sel.calibration)
     assert "Flux linkages and incremental inductances" in render_html(doc)
+
+
+@pytest.fixture(scope="module")
+def pm_syrm_selection():
+    """Lelli et al.'s 5.5-kW PM-SyRM (ICEM 2024, doi 10.1109/ICEM60801.2024.10700403; the independent plant of
+    helpers.blocks) on its locked levels with 20 mA noise, selected from the small-signal values a user knows."""
+    bench = lelli_bench(lelli_levels()).add_noise(0.02, 3)
+    lam, ld, lq = lelli_small_signal()
+    prior = dc.MotorParams(R=LELLI_PM_SYRM_MACHINE["R"], Ld=ld, Lq=lq, lambda_m=lam, pole_pairs=2.0, J=0.015)
+    sel = select_effects(bench.experiment(), bench.currents, prior, names=dc.ESTIMATED, magnetics="auto")
+    truth = from_lelli(prior, **LELLI_PM_SYRM, i_ref=float(sel.calibration.motor.i_ref))
+    return truth, sel, bench
+
+
+@pytest.mark.slow  # the default selection: the law about the magnet tried and failed, then the bridge (~3-4 min)
+def test_pm_assisted_motor_s_iron_bridge_is_found_and_fitted(pm_syrm_selection):
+    """Issue 18's PM-assisted motor: the default choice is the saturating law with the iron bridge, its exponents
+    the published ones, and R, lambda_m, Ld, Lq and every coefficient within 3 SE of the published motor's."""
+    truth, sel, _ = pm_syrm_selection
+    cal = sel.calibration
+    assert sel.magnetic_model == "saturating" and bool(cal.converged) and all(cal.identifiable)
+    assert set(sel.included) == {"saturation_d", "saturation_q", "cross_saturation", "iron_bridge"}
+    assert [float(getattr(cal.motor, e)) for e in EXPONENTS] == [4.0, 6.0, 1.0, 1.0]
+    assert float(cal.sigma_hat) == pytest.approx(0.02, rel=3.0 / np.sqrt(2.0 * cal.dof))
+    z = {n: (float(cal.estimate[i]) - float(getattr(truth, n))) / float(cal.se[i]) for i, n in enumerate(cal.names)}
+    assert len(z) == 11 and all(abs(v) < 3.0 for v in z.values()), z
+    doc = build_result(cal, bench=pm_syrm_selection[2], effects=sel.to_dict())
+    verdict = doc["verdict"]
+    assert verdict["status"] == "calibrated", verdict
+    assert any("iron bridge" in d for d in verdict["details"])
+    assert not any(w in " ".join(verdict["details"]) for w in ("dead time", "offsets", "delay other"))
+
+
+@pytest.mark.slow
+def test_pm_assisted_flux_map_bands_cover_the_true_maps(pm_syrm_selection):
+    """Issue 18: the 95 % bands of the bridged law cover the published PM-SyRM's maps at >= 93 % of the grid
+    points inside the tested range."""
+    truth, sel, bench = pm_syrm_selection
+    maps = flux_maps(sel.calibration, bench.currents)
+    assert maps.saturating and maps.tested.sum() >= 20
+    expected = flux_maps(dataclasses.replace(sel.calibration, prior=truth, names=(), estimate=np.zeros(0),
+                                             se=np.zeros(0), fit_names=(), covariance=np.zeros((0, 0))),
+                         bench.currents)
+    for name, band in maps.maps.items():
+        true = expected.maps[name].value
+        inside = (band.low <= true) & (true <= band.high)
+        if name == "L_dq":  # zero where either current is: a band of zero width there
+            inside |= np.isclose(true, band.value, rtol=0, atol=1e-12)
+        assert inside[maps.tested].mean() >= 0.93, (name, inside[maps.tested].mean())
 
 
 @pytest.mark.slow

@@ -34,7 +34,7 @@ import numpy as np
 from .._stats import chi2_sf
 from ..model import Experiment, model_experiment, predicted_currents, saturation_columns, with_experiment_delay
 from ..identify import sensitivity_jacobian
-from ..physics import EXPONENT_CANDIDATES, MAGNETIC, MotorParams, is_saturating
+from ..physics import BRIDGE, EXPONENT_CANDIDATES, MAGNETIC, MotorParams, is_saturating
 
 #: Family-wise false-alarm rate of the effect tests of one fit.
 ALPHA = 1e-3
@@ -68,6 +68,11 @@ MAGNETIC_EFFECTS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
     "saturation_q": (("sat_q",), ("sat_q",), "magnetic saturation of the q axis (Lq changes with current)"),
     "cross_saturation": (("sat_dq",), ("sat_dq",),
                          "cross-saturation (the current on each axis changes the other axis's inductance)"),
+}
+#: The iron bridges of a PM-assisted motor (``physics.BRIDGE``): not score-tested (at ``sat_b = 0`` its shape is
+#: undefined), tried by the selection where no fit of the law about the magnet converges (``selection._bridge``).
+BRIDGE_EFFECTS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
+    "iron_bridge": (BRIDGE, ("sat_b",), "the iron bridges of a PM-assisted motor (saturating asymmetrically in i_d)"),
 }
 _ALL_EFFECTS = {**EFFECTS, **ANGLE_EFFECTS, **MAGNETIC_EFFECTS}
 

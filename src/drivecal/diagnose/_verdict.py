@@ -49,7 +49,7 @@ import numpy as np
 from ..data import BenchData
 from ..results import Status
 from ._whiteness import WHITENESS_ALPHA, WHITENESS_LAGS, ljung_box, whiteness_rule
-from ._mismatch import MAGNETIC_EFFECTS
+from ._mismatch import BRIDGE_EFFECTS, MAGNETIC_EFFECTS
 
 #: sigma_hat above this multiple of the stated sensor noise means mismatch.
 SIGMA_RATIO_MAX = 1.5
@@ -200,9 +200,12 @@ def verdict(result: dict[str, Any]) -> dict[str, Any]:
         if choice["included"] and choice["how"] == "selected":
             shown = ", ".join(f"{n} = {v['value']:.4g} ± {1.96 * v['se']:.2g} (95 %)" for n, v in choice["estimate"].items()
                               if v["value"] is not None and v["se"] is not None)
-            kind = "magnetic saturation" if choice["effect"] in MAGNETIC_EFFECTS else "bench effect"
+            magnetic = choice["effect"] in MAGNETIC_EFFECTS or choice["effect"] in BRIDGE_EFFECTS
+            kind = "magnetic saturation" if magnetic else "bench effect"
+            evidence = (f"likelihood-ratio p = {choice['p_value']:.2g}" if choice["p_value"] is not None else
+                        "the law without the iron bridge did not converge")
             details.append(f"{kind} fitted because the data support it: {choice['effect'].replace('_', ' ')}"
-                           f" ({shown}; likelihood-ratio p = {choice['p_value']:.2g})"
+                           f" ({shown}; {evidence})"
                            + ("; the speed input's errors can leave its signature too" if speed[1] else ""))
     if not_ident:
         details.append(f"{', '.join(not_ident)} not identifiable by this plan: held at the prior, not calibrated")
@@ -243,6 +246,7 @@ def _beyond_the_law(result: dict[str, Any]) -> str:
                and c["p_value"] < c["p_threshold"]]
     if not flagged:
         return ""
+    tried = next((c for c in (result.get("effects") or {}).get("effects", []) if c["effect"] in BRIDGE_EFFECTS), None)
     tests = ", ".join(f"{c['effect'].replace('_', ' ')} p = {c['p_value']:.2g}" for c in flagged)
     return (f"the score tests find magnetic saturation ({tests}) that no fit with drivecal's saturating law took "
             "up: the iron saturates beyond the law the model choice tries (self- and cross-saturation symmetric "
@@ -250,7 +254,8 @@ def _beyond_the_law(result: dict[str, Any]) -> str:
             "Calibrate the small-signal values on a plan that stays where the iron is linear (a lower current "
             "limit: drivecal plan --imax), or fit each current level on its own; for a PM-assisted motor, state "
             "the law with its iron bridge in the motor file (a [lelli] table, or sat_at_zero = 1 with sat_b, "
-            "sat_bp, k_q, psi_n and the saturation terms listed in estimate: docs/bench-effects.md)")
+            "sat_bp, k_q, psi_n and the saturation terms listed in estimate: docs/bench-effects.md)"
+            + (f". Tried: {tried['note']}" if tried else ""))
 
 
 def _speed_finding(speed: dict[str, Any]) -> tuple[str, bool]:

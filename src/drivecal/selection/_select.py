@@ -28,6 +28,11 @@ each selected candidate out: a saturation term the bench effects explain
 (below ``MATERIAL_SATURATION`` of the flux, or no longer significant) is
 dropped, and so is a bench effect the saturating law explains.
 
+On a motor with a magnet whose law about the magnet's flux does not converge although a score test
+found saturation, the iron bridges of a PM-assisted motor are tried last (``_bridge``: the law's shape
+read from the locked steps' flux linkages, then everything refitted; the least RSS kept), and the bench
+effects are then chosen against that law.
+
 The same machinery serves any family of nested model extensions: a
 candidate is a name, the parameters it adds and the parameters whose
 sensitivity columns its score test probes (``diagnose.EFFECTS``).
@@ -52,6 +57,7 @@ from ..model import Experiment
 from ..physics import ESTIMABLE, EXPONENT_CANDIDATES, EXPONENTS, MotorParams, is_saturating
 from ..results import Calibration
 from ._backward import drop_effects, refine_exponents
+from ._bridge import BRIDGE_EFFECT, bridge_choices, bridge_wanted, fit_bridge
 from ._choices import (CANDIDATES, MATERIAL_SATURATION, EffectChoice, choice_note, fitted_estimate, lr_statistic,
                        one_step, saturation_size)
 
@@ -188,6 +194,8 @@ def select_effects(
             left_out = tuple(e for e in EFFECTS if e not in listed and e not in requested)
             cal, fits, decided, last = _add_effects(experiment, currents, prior, cal, list(magnetic), options,
                                                     source, force=magnetics == "saturating", left_out=left_out)
+            cal, fits = _with_bridge(experiment, currents, prior, cal, fits, decided, last, fit_names, requested,
+                                     magnetics, options, source, [])
         choices = []
         for e, (params, _, _) in CANDIDATES.items():
             if e in MAGNETIC_EFFECTS and e not in requested:
@@ -197,6 +205,7 @@ def select_effects(
             est = fitted_estimate(cal, params)
             how = "requested" if chosen else "not tested"
             choices.append(EffectChoice(e, chosen and bool(est), how, estimate=est, note=choice_note(e, chosen, how)))
+        choices += [decided[BRIDGE_EFFECT]] if BRIDGE_EFFECT in decided else []
         return EffectSelection(cal, experiment, "none" if effects == "none" else "list", tuple(choices), fits,
                                magnetics)
 
@@ -206,6 +215,9 @@ def select_effects(
     cal, fits, decided, last = _add_effects(experiment, currents, prior, cal, candidates + list(magnetic), options,
                                             source, force=magnetics == "saturating",
                                             left_out=("delay",) if fixed_delay and "delay" not in requested else ())
+    bench = [e for e in candidates if e in EFFECTS and e not in decided]
+    cal, fits = _with_bridge(experiment, currents, prior, cal, fits, decided, last, names, requested, magnetics,
+                             options, source, bench)
     choices = []
     for e, (params, _, _) in CANDIDATES.items():
         if e in requested:
@@ -216,7 +228,29 @@ def select_effects(
                                         note=f"delay fixed at {float(prior.delay):g} samples (--delay)"))
         else:
             choices.append(_choice(e, cal, decided, last, magnetics))
+    choices += [decided[BRIDGE_EFFECT]] if BRIDGE_EFFECT in decided else []
     return EffectSelection(cal, experiment, "auto", tuple(choices), 1 + fits, magnetics)
+
+
+def _with_bridge(experiment: Experiment, currents: np.ndarray, prior: MotorParams, cal: Calibration, fits: int,
+                 decided: dict, last: dict, names: tuple[str, ...], requested: tuple[str, ...], magnetics: str,
+                 options: FitOptions, source: str, bench: list[str]) -> tuple[Calibration, int]:
+    """The law with a PM-assisted motor's iron bridge where the selection's law did not converge (``_bridge``).
+
+    Updates ``decided`` and ``last`` in place; with the bridge kept, the bench effects of ``bench`` are then
+    chosen against it as they would have been against the law about the magnet. Returns ``(calibration,
+    fits)``."""
+    if not bridge_wanted(prior, cal, last, magnetics, names):
+        return cal, fits
+    bridged, more, why = fit_bridge(experiment, currents, prior, names, options, source)
+    decided.update(bridge_choices(bridged, why, requested))
+    if bridged is None:
+        return cal, fits + more
+    cal, added, chosen, tests = _add_effects(experiment, currents, prior.replace(sat_at_zero=1.0), bridged, bench,
+                                             options, source)
+    decided.update(chosen)
+    last.update(tests)
+    return cal, fits + more + added
 
 
 @contextlib.contextmanager
