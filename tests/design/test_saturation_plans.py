@@ -246,3 +246,26 @@ def test_plan_for_the_published_pm_syrm_stays_under_its_limit_on_its_own_law(tmp
     assert max(_peaks(bench.currents)) <= plan.current_limit
     # The locked steps reach their levels (R*i = v at rest, whatever the iron): the law's range is seen.
     assert max(_peaks(bench.currents)[:2]) >= 0.75 * plan.current_limit
+
+
+@pytest.mark.slow  # a plan through the CLI (the bridged law's identifiability compiles, ~60 s) and its bench run
+def test_plan_for_the_pm_syrm_s_iron_bridge_identifies_it_and_stays_under_its_limit(tmp_path, capsys):
+    """The same PM-SyRM planned for its whole law, the iron bridge's four coefficients included, from its motor
+    file (``examples/pm_syrm_motor.toml``: Lelli et al.'s published law in a ``[lelli]`` table).
+
+    The bridge saturates asymmetrically in i_d, so the d levels get a negative step: all eleven coefficients
+    are identified (rank full), and the plan run on the independent plant never exceeds its current limit.
+    """
+    motor = Path(__file__).resolve().parents[2] / "examples" / "pm_syrm_motor.toml"
+    names = dc.ESTIMATED + MAGNETIC + ("sat_b", "sat_bp", "k_q", "psi_n")
+    out = tmp_path / "plan.toml"
+    args = ["plan", "--motor", str(motor), "--vdc", "540", "--imax", "20", "--estimate", ",".join(names)]
+    assert main(args + ["--json", "--out", str(out)]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["assessment"]["identifiable"] and doc["assessment"]["identifiability"]["rank"] == len(names)
+    plan = dc.load_plan(out)
+    negative = [s for s in plan.segments if s.locked and np.any(np.asarray(s.v_d) < 0.0)]
+    assert [s.name for s in negative] == ["locked d-step negative"] and np.all(np.asarray(negative[0].v_q) == 0.0)
+    bench = lelli_bench(plan)
+    assert max(_peaks(bench.currents)) <= plan.current_limit
+    assert float(bench.currents[:, 0].min()) < -0.4 * plan.current_limit  # the bridge is driven both ways

@@ -12,6 +12,10 @@ What a plan must hold to show the saturation law's coefficients (``physics._magn
   (the margin auto-plan leaves everywhere) at 0.89 of the limit. The levels apart (each at most 1/2
   of the next, where ``identify`` counts a new level below 0.8) show the inductance's fall itself, not
   only its value at one current; the lowest keeps data near the small-signal range.
+* the iron bridge of a PM-assisted motor (``sat_b``, ``sat_bp``, ``k_q``, ``psi_n``): it saturates
+  asymmetrically in i_d (the magnet's flux it carries is pushed up or down), so the d levels get one
+  negative step too, at the middle level (2/3 of the top: field-weakening current, well clear of
+  demagnetising the magnet).
 * ``sat_dq``: both axes energised together: locked steps with ``(+v, +v)`` and ``(+v, -v)`` on
   ``(d, q)`` (:data:`COMBINED_SIGNS`), each axis at ``1/sqrt(2)`` of the top level, so that ``|i_dq|``
   settles at the top level too. The cross term acts only where both axes carry current.
@@ -79,8 +83,8 @@ class LockedStep:
 
 
 def saturation_requested(names: tuple[str, ...]) -> bool:
-    """Whether any saturation coefficient is among ``names``."""
-    return any(n in MAGNETIC for n in names)
+    """Whether any saturation coefficient (the iron bridge's among them) is among ``names``."""
+    return any(n in MAGNETIC or n in BRIDGE for n in names)
 
 
 def saturation_steps(names: tuple[str, ...], v_top: float, tau_d: float, tau_q: float) -> tuple[LockedStep, ...]:
@@ -100,6 +104,8 @@ def saturation_steps(names: tuple[str, ...], v_top: float, tau_d: float, tau_q: 
             label = f"locked {axis}-step" + suffix[level]
             v = level * v_top
             steps.append(LockedStep(label, v if axis == "d" else 0.0, v if axis == "q" else 0.0, tau))
+        if axis == "d" and set(BRIDGE) & set(names):  # the bridge saturates asymmetrically in i_d: both signs
+            steps.append(LockedStep("locked d-step negative", -middle * v_top, 0.0, tau))
     if "sat_dq" in names:
         v = v_top / math.sqrt(2.0)
         for sd, sq in COMBINED_SIGNS:
