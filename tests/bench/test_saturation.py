@@ -38,7 +38,11 @@ def test_saturating_d_axis_is_detected(benches, guess):
     assert check.largest_z["Lq"] < check.z_limit  # the q axis is linear in this motor
     low, high = sorted((x for x in check.levels if x.parameter == "Ld"), key=lambda x: x.current)
     assert high.estimate < 0.85 * low.estimate  # less inductance at 25 A than at 5 A
-    assert any("Ld changes with current" in f and "saturates" in f for f in check.findings)
+    assert any("Ld changes with current" in f and "saturates" in f and "average" in f for f in check.findings)
+    # With a saturating law fitted, the same finding says the law models it, not to average it away.
+    modelled = dc.check_saturation(benches[0], guess, modelled=True)
+    assert modelled.levels == check.levels
+    assert any("the fitted saturating law models" in f and "average" not in f for f in modelled.findings)
 
 
 @pytest.mark.slow

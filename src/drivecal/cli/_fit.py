@@ -161,7 +161,7 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
                                    source=bench.source, fixed_delay=delay_samples is not None,
                                    magnetics=magnetics)
         cal = selection.calibration
-        saturation = check_saturation(bench, prior)
+        saturation = check_saturation(bench, prior, modelled=selection.magnetic_model == "saturating")
         maps = None
         if selection.magnetic_model == "saturating":
             from ..maps import flux_maps

@@ -89,13 +89,16 @@ def _steps(bench: BenchData, parameter: str) -> list[tuple[int, float]]:
     return out
 
 
-def check_saturation(bench: BenchData, prior: MotorParams, *, z_limit: float = Z_LIMIT) -> SaturationCheck:
+def check_saturation(bench: BenchData, prior: MotorParams, *, z_limit: float = Z_LIMIT,
+                     modelled: bool = False) -> SaturationCheck:
     """Fit each locked single-axis step alone and compare the inductances across current levels.
 
     Args:
         bench: the recorded run.
         prior: nominal motor (start and prior of the per-step fits).
         z_limit: disagreement, in combined standard errors, that counts as a change.
+        modelled: the calibration fitted a saturating law: a change is what it models (the finding says so),
+            not an average to avoid.
 
     Returns:
         A :class:`SaturationCheck`; a parameter with fewer than two distinct
@@ -146,8 +149,9 @@ def check_saturation(bench: BenchData, prior: MotorParams, *, z_limit: float = Z
             saturating.append(parameter)
             findings.append(
                 f"{parameter} changes with current ({detail}; levels up to {z:.1f} SE apart): the iron saturates, "
-                f"and one fitted {parameter} would average different machines; calibrate at the operating "
-                "current or fit the levels separately."
+                + ("as the fitted saturating law models (the flux maps give the inductance at each current)."
+                   if modelled else f"and one fitted {parameter} would average different machines; calibrate at "
+                   "the operating current or fit the levels separately.")
             )
         else:
             findings.append(f"{parameter} is the same at every current level ({detail}; at most {z:.1f} SE apart).")
