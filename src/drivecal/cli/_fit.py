@@ -78,7 +78,8 @@ def _fit_table(cal: Calibration) -> Table:
               show_default=True,
               help="Magnetic model: 'auto' fits the saturation terms (d, q, cross) the data support, each with "
                    "the exponents that fit best, and keeps one only where it changes the flux by 2 % or more; "
-                   "'linear' constant Ld, Lq; 'saturating' every term the plan can identify.")
+                   "where that law cannot converge on a motor with a magnet, a PM-assisted motor's iron bridge "
+                   "is tried; 'linear' constant Ld, Lq; 'saturating' every term the plan can identify.")
 @click.option("--out", "out_dir", type=click.Path(), default=None,
               help="Directory for report.json, report.html and the PNG figures (created if missing; its parent "
                    "must exist).")

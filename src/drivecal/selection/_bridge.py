@@ -36,10 +36,10 @@ import numpy as np
 from ..diagnose import BRIDGE_EFFECTS, MAGNETIC_EFFECTS
 from ..fitting import FitOptions, fit_currents
 from ..model import Experiment
-from ..physics import (BRIDGE, ESTIMABLE, ESTIMATED, EXPONENTS, MAGNETIC, MotorParams, currents_of_flux, from_search,
+from ..physics import (BRIDGE, ESTIMATED, EXPONENTS, MAGNETIC, MotorParams, currents_of_flux, from_search,
                        has_bridge)
 from ..results import Calibration
-from ._choices import CANDIDATES, EffectChoice, fitted_estimate
+from ._choices import CANDIDATES, EffectChoice, fitted_estimate, names_with
 
 #: The effect's name in the selection's choices.
 BRIDGE_EFFECT = next(iter(BRIDGE_EFFECTS))
@@ -68,11 +68,6 @@ def bridge_wanted(prior: MotorParams, cal: Calibration, last: dict[str, dict[str
             and not has_bridge(prior) and not float(prior.sat_at_zero) and not set(BRIDGE) & set(names))
 
 
-def _fit_names(names: tuple[str, ...], extra: tuple[str, ...]) -> tuple[str, ...]:
-    wanted = set(names) | set(extra)
-    return tuple(n for n in ESTIMABLE if n in wanted)
-
-
 def fit_bridge(experiment: Experiment, currents: np.ndarray, prior: MotorParams, names: tuple[str, ...],
                options: FitOptions, source: str) -> tuple[Calibration | None, int, str]:
     """The law with the iron bridge fitted in the three steps of the module docstring.
@@ -88,7 +83,7 @@ def fit_bridge(experiment: Experiment, currents: np.ndarray, prior: MotorParams,
     Returns:
         ``(calibration or None, fits run, why none)``: the kept fit, or None with the reason in words.
     """
-    every = _fit_names(names, MAGNETIC + BRIDGE)
+    every = names_with(names, MAGNETIC + BRIDGE)
     static = tuple(n for n in ESTIMATED + MAGNETIC + BRIDGE if n in every)
     start = prior.replace(sat_at_zero=1.0, psi_n=PSI_N_START * float(prior.lambda_m), **SHAPE_START)
     shapes = []

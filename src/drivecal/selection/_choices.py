@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..diagnose import EFFECTS, MAGNETIC_EFFECTS
-from ..physics import MAGNETIC, MotorParams, flux_of_currents
+from ..physics import ESTIMABLE, MAGNETIC, MotorParams, flux_of_currents
 from ..results import Calibration
 
 #: Every candidate of the selection: the bench effects, then the terms of the saturating law.
@@ -70,6 +70,12 @@ class EffectChoice:
                 "p_threshold": num(self.p_threshold),
                 "estimate": {n: {"value": num(v), "se": num(s)} for n, (v, s) in self.estimate.items()},
                 "note": self.note}
+
+
+def names_with(names: tuple[str, ...], extra: tuple[str, ...]) -> tuple[str, ...]:
+    """``names`` and ``extra`` together, in ``physics.ESTIMABLE``'s order."""
+    wanted = set(names) | set(extra)
+    return tuple(n for n in ESTIMABLE if n in wanted)
 
 
 def lr_statistic(before: Calibration, after: Calibration) -> float:

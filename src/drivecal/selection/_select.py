@@ -54,12 +54,12 @@ from ..errors import DrivecalError
 from ..fitting import FitOptions, fit_currents
 from ..identify import assess_identifiability
 from ..model import Experiment
-from ..physics import ESTIMABLE, EXPONENT_CANDIDATES, EXPONENTS, MotorParams, is_saturating
+from ..physics import EXPONENT_CANDIDATES, EXPONENTS, MotorParams, is_saturating
 from ..results import Calibration
 from ._backward import drop_effects, refine_exponents
 from ._bridge import BRIDGE_EFFECT, bridge_choices, bridge_wanted, fit_bridge
 from ._choices import (CANDIDATES, MATERIAL_SATURATION, EffectChoice, choice_note, fitted_estimate, lr_statistic,
-                       one_step, saturation_size)
+                       names_with, one_step, saturation_size)
 
 #: Values of ``--effects`` besides a list of effect names.
 MODES: tuple[str, ...] = ("auto", "none")
@@ -127,11 +127,6 @@ class EffectSelection:
                 "effects": [c.to_dict() for c in self.choices]}
 
 
-def _names_with(names: tuple[str, ...], extra: tuple[str, ...]) -> tuple[str, ...]:
-    wanted = set(names) | set(extra)
-    return tuple(n for n in ESTIMABLE if n in wanted)
-
-
 def _start(motor: MotorParams, test: dict[str, Any]) -> MotorParams:
     """``motor`` with the tested effect's probed parameters at their one-step estimates (where sensible)."""
     changes = {}
@@ -187,7 +182,7 @@ def select_effects(
         prior = _with_reference_current(prior, currents)
     if effects == "none" or isinstance(effects, tuple):
         listed = () if effects == "none" else effects
-        fit_names = _names_with(names, tuple(n for e in listed for n in EFFECTS[e][0]))
+        fit_names = names_with(names, tuple(n for e in listed for n in EFFECTS[e][0]))
         cal = fit_currents(experiment, currents, prior, names=fit_names, options=options, source=source)
         fits, decided, last = 1, {}, {}
         if magnetic:
@@ -356,7 +351,7 @@ def _add_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParam
         start = _start(cal.motor, best)
         if not bool(cal.converged):  # no estimates to start from: the nominal motor, the test's exponents
             start = prior.replace(**{n: v["estimate"] for n, v in best["one_step"].items() if n in EXPONENTS})
-        trial = _names_with(cal.fit_names, CANDIDATES[effect][0])
+        trial = names_with(cal.fit_names, CANDIDATES[effect][0])
         try:
             # Judged at the fit so far with the effect at its one-step estimate: the dead time's width
             # shows only where v_dead is not zero.
