@@ -62,11 +62,8 @@ def test_linear_seed_motor_stays_linear(truth):
         assert not choices[term].included and np.isfinite(choices[term].p_value)
 
 
-@pytest.mark.slow
-@pytest.mark.long
-def test_flux_map_bands_cover_the_true_maps(syrm_selection):
-    """Issue 18: the 95 % bands cover the true maps at >= 93 % of the grid points inside the tested range."""
-    truth, sel, bench = syrm_selection
+def _assert_bands_cover(truth: dc.MotorParams, sel, bench: dc.BenchData):
+    """The selection's flux maps, their 95 % bands covering ``truth``'s maps at >= 93 % of the tested grid points."""
     maps = flux_maps(sel.calibration, bench.currents)
     assert maps.saturating and maps.tested.sum() >= 20
     expected = flux_maps(dataclasses.replace(sel.calibration, prior=truth, names=(), estimate=np.zeros(0),
@@ -78,6 +75,15 @@ def test_flux_map_bands_cover_the_true_maps(syrm_selection):
         if name == "L_dq":  # zero where either current is: a band of zero width there
             inside |= np.isclose(true, band.value, rtol=0, atol=1e-12)
         assert inside[maps.tested].mean() >= 0.93, (name, inside[maps.tested].mean())
+    return maps
+
+
+@pytest.mark.slow
+@pytest.mark.long
+def test_flux_map_bands_cover_the_true_maps(syrm_selection):
+    """Issue 18: the 95 % bands cover the true maps at >= 93 % of the grid points inside the tested range."""
+    truth, sel, bench = syrm_selection
+    maps = _assert_bands_cover(truth, sel, bench)
     # Saturation: the q-axis inductance at the largest tested q current is well below its small-signal value.
     row = maps.along("q")[-1]
     assert row[2] and row[1]["L_qq"][0] < 0.8 * float(truth.Lq)
@@ -130,17 +136,7 @@ def test_pm_assisted_flux_map_bands_cover_the_true_maps(pm_syrm_selection):
     """Issue 18: the 95 % bands of the bridged law cover the published PM-SyRM's maps at >= 93 % of the grid
     points inside the tested range."""
     truth, sel, bench = pm_syrm_selection
-    maps = flux_maps(sel.calibration, bench.currents)
-    assert maps.saturating and maps.tested.sum() >= 20
-    expected = flux_maps(dataclasses.replace(sel.calibration, prior=truth, names=(), estimate=np.zeros(0),
-                                             se=np.zeros(0), fit_names=(), covariance=np.zeros((0, 0))),
-                         bench.currents)
-    for name, band in maps.maps.items():
-        true = expected.maps[name].value
-        inside = (band.low <= true) & (true <= band.high)
-        if name == "L_dq":  # zero where either current is: a band of zero width there
-            inside |= np.isclose(true, band.value, rtol=0, atol=1e-12)
-        assert inside[maps.tested].mean() >= 0.93, (name, inside[maps.tested].mean())
+    _assert_bands_cover(truth, sel, bench)
 
 
 @pytest.mark.slow
