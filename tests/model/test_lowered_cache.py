@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import pickle
 import shutil
+import zlib
 from pathlib import Path
 
 import jax
@@ -41,6 +43,47 @@ def test_kept_program_gives_the_plain_numbers_and_is_reused(store, monkeypatch):
         np.testing.assert_array_equal(out["a"], plain["a"])
         np.testing.assert_array_equal(out["b"][0], plain["b"][0])
         assert out["b"][1] is None
+
+
+def _kept_executable(path: Path):
+    return pickle.loads(zlib.decompress(path.read_bytes()))[2]
+
+
+def test_a_kernel_compiled_here_is_kept_and_a_new_process_runs_it_without_lowering(store, monkeypatch):
+    x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
+    plain = _f(x, y, scale=2.5)
+    traced.call(_f, "f", x, y, scale=2.5)
+    (path,) = store.glob("f-*.pkl")
+    assert _kept_executable(path) is not None
+    monkeypatch.setattr(traced, "_LOADED", {})  # a new process
+    monkeypatch.setattr(traced, "_runner", lambda *a: pytest.fail("lowered the program again"))
+    again = traced.call(_f, "f", x, y, scale=2.5)
+    np.testing.assert_array_equal(again["a"], plain["a"])
+    np.testing.assert_array_equal(again["b"][0], plain["b"][0])
+
+
+def test_a_kernel_the_compilation_cache_supplied_is_not_kept(store, monkeypatch):
+    """jaxlib 0.9 serialises an executable loaded from the compilation cache without its code (it fails when
+    run): a compilation that was a cache hit keeps the program only, which a later process lowers."""
+    runner = traced._runner
+
+    class _FromCache:
+        def __init__(self, exported):
+            self.jitted = runner(exported)
+
+        def lower(self, *leaves):
+            lowered = self.jitted.lower(*leaves)
+            traced._count_hit("/jax/compilation_cache/cache_hits")  # as JAX reports a hit, in this thread
+            return lowered
+
+    monkeypatch.setattr(traced, "_runner", _FromCache)
+    x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
+    first = traced.call(_f, "f", x, y, scale=2.5)
+    (path,) = store.glob("f-*.pkl")
+    assert _kept_executable(path) is None
+    monkeypatch.setattr(traced, "_runner", runner)
+    monkeypatch.setattr(traced, "_LOADED", {})
+    np.testing.assert_array_equal(traced.call(_f, "f", x, y, scale=2.5)["a"], first["a"])
 
 
 def test_key_separates_shapes_statics_and_dtypes(store):
