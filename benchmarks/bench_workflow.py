@@ -10,15 +10,16 @@ with the tutorial workflow (the seed's own code: its bench, Jacobian, identifiab
 Gauss-Newton for both designs; `bench_core.py --seed-workflow-only`, no compilation cache, as
 the tutorial has none) timed in the same run. "cold" rows start each run on an empty compilation
 cache (a machine's first run, what `make demo` does); "warm" rows run on a cache filled by one
-discarded run of the same command. Medians are reported; the ratio columns are what to read
-(the machines here are noisy).
+discarded run of the same command. Medians are reported, of the wall time and of the CPU time
+(user + system of the process and its children: less disturbed by other load on a shared
+machine); the ratio columns are what to read (the machines here are noisy).
 
 It also takes the cold demo apart phase by phase (`demo_phases.py`: import, engine bench, fit,
 result JSON, figures + HTML, and compile/trace seconds by kernel) for both trees.
 
 Prints tables and writes benchmarks/results/bench_workflow.json.
 
-    .venv/bin/python benchmarks/bench_workflow.py [--runs 3] [--cold-runs 2] [--baseline-commit 909f496]
+    .venv/bin/python benchmarks/bench_workflow.py [--runs 3] [--cold-runs 2] [--baseline-commit 76b0222]
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import statistics
 import subprocess
 import sys
@@ -43,7 +45,7 @@ from bench_startup import RUN_CLI, check_origin, ensure_baseline  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path(__file__).parent / "results" / "bench_workflow.json"
-BASELINE_COMMIT = "909f496"
+BASELINE_COMMIT = "76b0222"
 EXAMPLES = ROOT / "examples"
 
 #: (label, arguments, cache): "cold" = empty compilation cache each run, "warm" = cache from a run before.
@@ -75,29 +77,44 @@ def _env(src: Path, cache: str | None) -> dict[str, str]:
     return env
 
 
+def _cpu_of_children() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+#: CPU seconds (user + system) of each timed run, in the order of the runs (``_run`` appends).
+CPU: list[float] = []
+
+
 def _run(cmd: list[str], env: dict[str, str]) -> float:
+    """Wall seconds of one fresh process running ``cmd``; its CPU seconds go to :data:`CPU`."""
     with tempfile.TemporaryDirectory(prefix="drivecal-wf-") as tmp:
         out = str(Path(tmp) / "out")
         args = [a.replace("{out}", out) for a in cmd]
+        c0 = _cpu_of_children()
         t0 = time.perf_counter()
         proc = subprocess.run(args, capture_output=True, text=True, env=env)
         elapsed = time.perf_counter() - t0
+        CPU.append(_cpu_of_children() - c0)
     # fit's exit status is its verdict's (0 calibrated); anything but a crash counts as a run
     if proc.returncode not in (0, 3, 4, 5, 6, 7):
         raise SystemExit(f"{' '.join(args)}: exit {proc.returncode}\n{proc.stderr[-2000:]}")
     return elapsed
 
 
-def time_case(src: Path, args: list[str], cache_kind: str, runs: int, warm_cache: str) -> list[float]:
+def time_case(src: Path, args: list[str], cache_kind: str, runs: int,
+              warm_cache: str) -> tuple[list[float], list[float]]:
+    """Wall and CPU seconds of ``runs`` fresh processes (each on an empty cache where ``cache_kind`` is cold)."""
     cmd = [sys.executable, "-c", RUN_CLI, *args]
     if cache_kind == "warm":
         _run(cmd, _env(src, warm_cache))  # fills the cache; discarded
-        return [_run(cmd, _env(src, warm_cache)) for _ in range(runs)]
+        times = [_run(cmd, _env(src, warm_cache)) for _ in range(runs)]
+        return times, CPU[-runs:]
     times = []
     for _ in range(runs):
         with tempfile.TemporaryDirectory(prefix="drivecal-cold-cache-") as cache:
             times.append(_run(cmd, _env(src, cache)))
-    return times
+    return times, CPU[-runs:]
 
 
 def time_tutorial(src: Path, runs: int) -> list[float]:
@@ -138,19 +155,23 @@ def main() -> None:
         for label, case, kind in CASES:
             if args.only and args.only not in label:
                 continue
-            samples = {}
+            samples, cpu = {}, {}
             try:
                 for name, src in trees.items():
                     status.update(f"{label} ({kind}, {name})")
-                    samples[name] = time_case(src, case, kind, args.cold_runs if kind == "cold" else args.runs,
-                                              caches[name])
+                    samples[name], cpu[name] = time_case(src, case, kind,
+                                                         args.cold_runs if kind == "cold" else args.runs, caches[name])
             except SystemExit as exc:  # one command failing costs its row, not the run
                 console.print(f"[red]{escape(label)} ({kind}) failed[/red]: {escape(str(exc))[:300]}")
                 continue
             base, now = (statistics.median(samples[n]) for n in trees)
+            base_cpu, now_cpu = (statistics.median(cpu[n]) for n in trees)
             rows.append({"command": label, "cache": kind, "baseline_median_s": base, "now_median_s": now,
                          "baseline_over_now": base / now, "now_over_tutorial": now / t_tutorial,
-                         "baseline_samples_s": samples["baseline"], "now_samples_s": samples["now"]})
+                         "baseline_samples_s": samples["baseline"], "now_samples_s": samples["now"],
+                         "baseline_cpu_median_s": base_cpu, "now_cpu_median_s": now_cpu,
+                         "baseline_cpu_over_now": base_cpu / max(now_cpu, 1e-9),
+                         "baseline_cpu_samples_s": cpu["baseline"], "now_cpu_samples_s": cpu["now"]})
         status.update("the cold demo, phase by phase")
         breakdown = {} if args.skip_phases else {name: phases(src) for name, src in trees.items()}
 
@@ -162,9 +183,14 @@ def main() -> None:
     table.add_column(escape("now [s]"), justify="right")
     table.add_column("baseline / now", justify="right")
     table.add_column("now / tutorial", justify="right")
+    table.add_column(escape("CPU baseline [s]"), justify="right")
+    table.add_column(escape("CPU now [s]"), justify="right")
+    table.add_column("CPU baseline / now", justify="right")
     for r in rows:
         table.add_row(r["command"], r["cache"], f"{r['baseline_median_s']:.2f}", f"{r['now_median_s']:.2f}",
-                      f"{r['baseline_over_now']:.2f}x", f"{r['now_over_tutorial']:.2f}")
+                      f"{r['baseline_over_now']:.2f}x", f"{r['now_over_tutorial']:.2f}",
+                      f"{r['baseline_cpu_median_s']:.2f}", f"{r['now_cpu_median_s']:.2f}",
+                      f"{r['baseline_cpu_over_now']:.2f}x")
     console.print(table)
     if breakdown:
         _print_phases(console, breakdown)
