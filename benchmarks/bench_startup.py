@@ -1,4 +1,5 @@
-"""Startup benchmark: how fast the CLI answers `--help`, `--version` and `COMMAND --help`.
+"""Startup benchmark: how fast the CLI answers `--help`, `--version` and `COMMAND --help`, and what each
+command spends importing before it starts its work.
 
 Each case runs as a fresh process, N times (the first run is discarded as a warm-up:
 it fills the OS file cache and writes the .pyc files), and the median wall time is
@@ -13,9 +14,19 @@ Both run ``python -c "import sys; from drivecal.cli import main; sys.exit(main()
 so neither pays for the console-script wrapper; before timing, each side checks that
 ``drivecal`` really is imported from its own tree.
 
-Prints a table and writes benchmarks/results/bench_startup.json.
+Imports before work: for each command, a fresh process imports what the command imports before
+its first computation (:data:`BEFORE_WORK`: its module, the imports at the top of its body and
+those of the helpers it calls first, such as ``--motor``'s loader) and reports that wall time,
+timed inside the process (the interpreter's own start-up left out). What the work itself
+imports later (pandas inside the bench loader, scipy.special at the first interval) is not in
+it: for that, time whole commands (bench_workflow.py). The baseline here is the tree before the
+imports were made lazy (commit 76b0222, a detached worktree in /tmp/drivecal-imports-baseline);
+the two trees' runs alternate.
+
+Prints two tables and writes benchmarks/results/bench_startup.json.
 
     .venv/bin/python benchmarks/bench_startup.py [--runs 7] [--baseline-commit c2334e8]
+        [--imports-baseline-commit 76b0222]
 """
 
 from __future__ import annotations
@@ -41,6 +52,37 @@ BASELINE_COMMIT = "c2334e8"
 RUN_CLI = "import sys; from drivecal.cli import main; sys.exit(main())"
 #: The commands of the CLI (the same in the baseline and now).
 COMMANDS = ("batch", "demo", "design", "fit", "fleet-report", "gains", "plan", "report", "simulate")
+IMPORTS_BASELINE_DIR = Path("/tmp/drivecal-imports-baseline")
+IMPORTS_BASELINE_COMMIT = "76b0222"
+#: Per command, the modules it imports before its first computation, in order (src/drivecal/cli/_COMMAND.py:
+#: the command's module, the imports at the top of its body, then those of the helpers it calls first).
+BEFORE_WORK: dict[str, tuple[str, ...]] = {
+    "batch": ("drivecal.cli._batch", "rich.progress", "drivecal.errors", "drivecal.fleet", "drivecal.selection",
+              "drivecal.data"),
+    "demo": ("drivecal.cli._demo", "drivecal.demo"),
+    "design": ("drivecal.cli._design", "drivecal.design", "drivecal.identify", "drivecal.model", "drivecal.plan",
+               "drivecal.data"),
+    "fit": ("drivecal.cli._fit", "rich.markup", "drivecal.data", "drivecal.diagnose", "drivecal.identify",
+            "drivecal.report", "drivecal.results", "drivecal.selection"),
+    "fleet-report": ("drivecal.cli._fleet_report", "drivecal.fleet", "drivecal.data", "drivecal.physics"),
+    "gains": ("drivecal.cli._gains", "drivecal.errors", "drivecal._io", "drivecal.fitting", "drivecal.report",
+              "drivecal.results"),
+    "inspect": ("drivecal.cli._inspect", "rich.markup", "rich.table", "drivecal._io", "drivecal.data"),
+    "plan": ("drivecal.cli._plan", "drivecal.design", "drivecal.plan", "drivecal.data"),
+    "report": ("drivecal.cli._report", "drivecal.report", "drivecal.results"),
+    "simulate": ("drivecal.cli._simulate", "drivecal.errors", "drivecal.plan", "drivecal.data"),
+}
+#: What the baseline imported before the work besides: `demo` loaded the figure module (matplotlib)
+#: with or without --out.
+BASELINE_ONLY: dict[str, tuple[str, ...]] = {"demo": ("drivecal._figures",)}
+#: Heavy libraries: which of them a command has loaded when its work starts (a column of the table).
+HEAVY = ("jax", "optimistix", "pandas", "pyarrow", "scipy.special", "matplotlib", "jaxonomy")
+IMPORT_TIMER = ("import importlib, json, sys, time\n"
+                "t0 = time.perf_counter()\n"
+                "for name in sys.argv[1:]:\n"
+                "    importlib.import_module(name)\n"
+                "seconds = time.perf_counter() - t0\n"
+                f"print(json.dumps([seconds, [m for m in {HEAVY!r} if m in sys.modules]]))\n")
 
 
 def ensure_baseline(path: Path, commit: str) -> None:
@@ -84,16 +126,70 @@ def time_runs(src: Path, args: list[str], runs: int) -> list[float]:
     return times[1:]
 
 
+def time_imports(src: Path, modules: tuple[str, ...]) -> tuple[float, list[str]]:
+    """Wall time [s] of importing ``modules`` in a fresh process, and the heavy libraries then loaded."""
+    proc = subprocess.run([sys.executable, "-c", IMPORT_TIMER, *modules], capture_output=True, text=True,
+                          env=env_for(src))
+    if proc.returncode != 0:
+        raise SystemExit(f"PYTHONPATH={src}: importing {', '.join(modules)} failed\n{proc.stderr}")
+    seconds, loaded = json.loads(proc.stdout.strip().splitlines()[-1])
+    return seconds, loaded
+
+
+def imports_before_work(trees: dict[str, Path], runs: int, status) -> list[dict]:
+    """Per command: each tree's import time before work, ``runs`` fresh processes each (after one
+    warm-up), the trees alternating run by run; the medians, their ratio and what each had loaded."""
+    rows = []
+    for command, modules in BEFORE_WORK.items():
+        samples: dict[str, list[float]] = {name: [] for name in trees}
+        loaded: dict[str, list[str]] = {}
+        lists = {"baseline": modules[:1] + BASELINE_ONLY.get(command, ()) + modules[1:], "now": modules}
+        for k in range(runs + 1):
+            for name, src in trees.items():
+                status.update(f"imports before work: {command} ({name}, run {k + 1} of {runs + 1})")
+                seconds, loaded[name] = time_imports(src, lists[name])
+                if k:  # the first run of each tree is the warm-up
+                    samples[name].append(seconds)
+        base, now = (statistics.median(samples[n]) for n in ("baseline", "now"))
+        rows.append({"command": command, "baseline_modules": list(lists["baseline"]), "now_modules": list(modules),
+                     "baseline_median_s": base, "now_median_s": now,
+                     "ratio_baseline_over_now": base / now, "baseline_loaded": loaded["baseline"],
+                     "now_loaded": loaded["now"], "baseline_samples_s": samples["baseline"],
+                     "now_samples_s": samples["now"]})
+    return rows
+
+
+def imports_table(rows: list[dict], runs: int, commit: str) -> Table:
+    table = Table(title=f"Imports before work, fresh processes: median of {runs} runs (after one warm-up)",
+                  title_justify="left")
+    table.add_column("command", justify="left", no_wrap=True)
+    table.add_column(escape(f"baseline {commit} [s]"), justify="right")
+    table.add_column(escape("now [s]"), justify="right")
+    table.add_column("baseline / now", justify="right")
+    table.add_column("no longer loaded before work", justify="left")
+    for r in rows:
+        gone = [m for m in r["baseline_loaded"] if m not in r["now_loaded"]]
+        table.add_row(r["command"], f"{r['baseline_median_s']:.3f}", f"{r['now_median_s']:.3f}",
+                      f"{r['ratio_baseline_over_now']:.2f}x", ", ".join(gone) or "-")
+    return table
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=7, help="timed runs per case (after one warm-up run)")
     parser.add_argument("--baseline-commit", default=BASELINE_COMMIT, help="the commit timed as the baseline")
     parser.add_argument("--baseline-dir", type=Path, default=BASELINE_DIR, help="where its worktree lives")
+    parser.add_argument("--imports-baseline-commit", default=IMPORTS_BASELINE_COMMIT,
+                        help="the commit whose imports before work are timed as the baseline")
+    parser.add_argument("--imports-baseline-dir", type=Path, default=IMPORTS_BASELINE_DIR,
+                        help="where its worktree lives")
     args = parser.parse_args()
 
     ensure_baseline(args.baseline_dir, args.baseline_commit)
+    ensure_baseline(args.imports_baseline_dir, args.imports_baseline_commit)
     trees = {"baseline": args.baseline_dir / "src", "now": ROOT / "src"}
-    origins = {name: check_origin(src) for name, src in trees.items()}
+    import_trees = {"baseline": args.imports_baseline_dir / "src", "now": ROOT / "src"}
+    origins = {name: check_origin(src) for name, src in {**trees, "imports_baseline": import_trees["baseline"]}.items()}
     cases = [["--help"], ["--version"]] + [[c, "--help"] for c in COMMANDS]
 
     console = Console()
@@ -109,6 +205,7 @@ def main() -> None:
             rows.append({"command": label, "baseline_median_s": base, "now_median_s": now,
                          "ratio_baseline_over_now": base / now,
                          "baseline_samples_s": samples["baseline"], "now_samples_s": samples["now"]})
+        import_rows = imports_before_work(import_trees, args.runs, status)
 
     table = Table(title=f"CLI startup, fresh processes: median of {args.runs} runs (after one warm-up)",
                   title_justify="left")
@@ -120,6 +217,7 @@ def main() -> None:
         table.add_row(r["command"], f"{r['baseline_median_s']:.3f}", f"{r['now_median_s']:.3f}",
                       f"{r['ratio_baseline_over_now']:.1f}x")
     console.print(table)
+    console.print(imports_table(import_rows, args.runs, args.imports_baseline_commit))
 
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(json.dumps({
@@ -132,6 +230,12 @@ def main() -> None:
         "now": {"src": str(trees["now"]), "drivecal_cli": origins["now"]},
         "invocation": f"{sys.executable} -c {RUN_CLI!r} ARGS",
         "rows": rows,
+        "imports_before_work": {
+            "baseline": {"commit": args.imports_baseline_commit, "src": str(import_trees["baseline"]),
+                         "drivecal_cli": origins["imports_baseline"]},
+            "invocation": f"{sys.executable} -c IMPORT_TIMER MODULES (benchmarks/bench_startup.py)",
+            "rows": import_rows,
+        },
     }, indent=2) + "\n")
     console.print(f"wrote {RESULTS.relative_to(ROOT)}")
 

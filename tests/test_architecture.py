@@ -241,6 +241,22 @@ def test_import_drivecal_and_help_do_not_load_jax():
     assert proc.stdout.strip() == "[]", f"--help imported {proc.stdout.strip()}"
 
 
+def test_sub_packages_load_heavy_libraries_only_where_used():
+    """Importing the sub-packages (what a command does before its work) loads no optimistix (a solve being traced
+    and plan optimisation load it), no pandas or pyarrow (reading and writing tables) and no scipy.special (the
+    first interval or test): `drivecal report`, `gains`, `design` and `plan` then never load them."""
+    code = ("import sys\n"
+            "import drivecal.cli._design, drivecal.cli._gains, drivecal.cli._plan, drivecal.cli._report\n"
+            "import drivecal.data, drivecal.design, drivecal.diagnose, drivecal.fitting, drivecal.identify\n"
+            "import drivecal.report, drivecal.results, drivecal.selection\n"
+            "heavy = ('optimistix', 'lineax', 'pandas', 'pyarrow', 'scipy.special')\n"
+            "print(sorted(m for m in heavy if m in sys.modules))\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONWARNINGS": "ignore"})
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[]", f"importing the sub-packages loaded {proc.stdout.strip()}"
+
+
 @pytest.mark.parametrize("old, name, new", [
     ("forward", "predict_currents", "drivecal.model"), ("fit", "Calibration", "drivecal.results"),
     ("motor", "MotorParams", "drivecal.physics"), ("record", "build_result", "drivecal.report"),

@@ -20,7 +20,7 @@ MOVED: dict[str, tuple[str, ...]] = {
     "config": ("plan._files", "data._motor_file", "_units"),
     "distributions": ("_stats",),
     "export": ("bench._blocks",),
-    "fit": ("fitting._fit", "fitting._options", "fitting._solver", "results._calibration"),
+    "fit": ("fitting._fit", "fitting._options", "fitting._solver", "results._calibration", "fitting._lm"),
     "fleet_report": ("fleet._report",),
     "forward": ("model._rollout", "model._experiment", "physics._sensors"),
     "gains": ("report._gains",),

@@ -1,6 +1,5 @@
-"""The solver's shortcuts change the cost, not the answer.
+"""The solver's shortcuts change the cost, not the answer (its LM steps: test_lm.py).
 
-- LM steps through the 4 x 4 normal equations take optimistix LM's steps (QR of [J; sqrt(lambda) I]).
 - The statistical stop (``FitOptions.step_se``) skips the confirming step without moving the estimate.
 - The start from the data, computed inside the compiled solve, is ``initial.equation_error_start``.
 - Host-side experiments (a fleet's) are the device ones.
@@ -12,7 +11,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 import pytest
 
 import drivecal as dc
@@ -37,33 +35,6 @@ def tight_batch(clean_default, noisy_batch, guess):
     """The batch solved to 1e-10 without the statistical stop: the reference optimum."""
     options = dc.FitOptions(rtol=1e-10, atol=1e-10, step_se=0.0, first_pass_steps=None)
     return dc.fit_currents(clean_default.experiment(), noisy_batch, guess, options=options)
-
-
-def test_normal_equations_take_optimistix_lm_steps(clean_default, noisy_batch, guess):
-    """From the same start, both solvers visit the same points: same steps, same end (to rounding)."""
-    names = dc.ESTIMATED
-    experiment = model_experiment(clean_default.experiment(), guess, names)
-    start = np.asarray(equation_error_start(experiment, jnp.asarray(noisy_batch[:4]), guess, names))
-    z0 = jnp.asarray(to_search(guess, names, start))
-
-    def solve(solver):
-        def one(currents, z):
-            residual = fit_module._residual_fn(guess, experiment, names, jnp.asarray(currents))
-            sol = optx.least_squares(residual, solver, z, max_steps=100, throw=False)
-            return sol.value, sol.stats["num_steps"], sol.result._value
-
-        return jax.jit(jax.vmap(one))(jnp.asarray(noisy_batch[:4]), z0)
-
-    # At the default tolerance both take the same number of steps to the same point; at 1e-10
-    # rounding decides which noise-level trial steps are accepted, but not where they end.
-    for tol, steps_equal, atol in ((1e-5, True, 1e-10), (1e-10, False, 1e-9)):
-        ours = solve(fit_module._LevenbergMarquardt(rtol=tol, atol=tol))
-        theirs = solve(optx.LevenbergMarquardt(rtol=tol, atol=tol))
-        assert np.all(np.asarray(ours[2]) == 0) and np.all(np.asarray(theirs[2]) == 0)
-        if steps_equal:
-            np.testing.assert_array_equal(ours[1], theirs[1])
-        # z is relative: 1e-9 is ~1e-5 standard errors here.
-        np.testing.assert_allclose(ours[0], theirs[0], rtol=0, atol=atol)
 
 
 def test_statistical_stop_saves_steps_not_accuracy(clean_default, noisy_batch, guess, tight_batch):

@@ -2,6 +2,9 @@
 
 Bench logs as a bench writes them (MDF4, TDMS, HDF5, any CSV dialect) are read through a format file
 (:func:`load_format`): channel names, units and segment windows onto drivecal's columns.
+
+pandas and pyarrow (~0.4 s to import) are imported where a table is read or written, not with this
+package: the commands that read none (``design``, ``plan``, ``report``, ``gains``) never load them.
 """
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)

@@ -19,9 +19,9 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from ..errors import DataError
 from ..model import Experiment
@@ -30,6 +30,9 @@ from .._stats import noise_level
 from .._io import atomic_path
 from ._readers import TABLE_FORMATS
 from ._speed import SpeedResolution, speed_resolution
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 
 @dataclasses.dataclass(frozen=True)
@@ -177,6 +180,8 @@ class BenchData:
 
     def to_frame(self) -> pd.DataFrame:
         """One row per sample with the bench-file columns."""
+        import pandas as pd
+
         frames = []
         start = 0.0  # a continuing segment's clock runs on from the previous one's (one sample period later)
         for k, seg in enumerate(self.segments):

@@ -16,10 +16,9 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 from collections.abc import Hashable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from ..errors import DataError
 from .._stats import fast_median, noise_level
@@ -29,6 +28,9 @@ from ._format_file import BenchFormat, load_format
 from ._mapping import read_columns
 from ._readers import Columns, columns_of
 from ._values import check_numbers
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 #: The dq columns of a bench file, with what each holds.
 DQ_COLUMNS: dict[str, str] = {
@@ -157,6 +159,8 @@ def benches_from_frames(
 
 def _segments(segment: np.ndarray, source: str) -> tuple[list[str], list[int]]:
     """The segment names (stripped) in order of appearance and their numbers of rows; each a block of rows."""
+    import pandas as pd
+
     # Segment names by code (a handful of distinct names over thousands of rows: strip those, not every row).
     try:
         codes, labels = pd.factorize(segment, use_na_sentinel=True)
@@ -416,6 +420,8 @@ def _check(tables: list[Columns], names: list[str], sizes: list[int], nominal_R:
         finite = ok.copy()
     temperature = None
     if "temperature" in tables[0]:
+        import pandas as pd
+
         temperature = np.stack([pd.to_numeric(table["temperature"], errors="coerce").astype(float)
                                 for table in tables])
     currents = np.stack([column["i_d"], column["i_q"]], axis=-1)  # (B, N, 2)

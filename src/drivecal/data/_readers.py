@@ -9,14 +9,15 @@ from __future__ import annotations
 import io
 import re
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
-import pyarrow as pa  # loaded by pandas already
 
 from ..errors import DataError
 from ._values import time_in_seconds
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 #: Bench tables by suffix: the files drivecal reads and writes with its own columns.
 TABLE_FORMATS = (".csv", ".parquet", ".mat")
@@ -35,6 +36,8 @@ def columns_of(frame: pd.DataFrame | Columns, source: str = "bench data") -> Col
     A time column ``t`` of a timestamp or duration type becomes float64 seconds from its first
     sample (:func:`._values.time_in_seconds`).
     """
+    import pandas as pd
+
     if isinstance(frame, pd.DataFrame):
         out = {}
         for c in frame.columns:
@@ -74,6 +77,9 @@ def read_table(path: Path, content: bytes | None = None, *, delimiter: str | Non
                         + (" (a bench log: give its format file, --format)." if suffix in FORMATS else "."))
     if content is None and not path.is_file():
         raise DataError(f"{path}: no such file; check the path.")
+    import pandas as pd
+    import pyarrow as pa
+
     try:
         if suffix == ".parquet":
             # Arrow columns straight to numpy: no DataFrame (pandas' conversion and lookups cost
@@ -148,6 +154,8 @@ def _read_parquet(source: Any) -> Any:
 
 def _arrow_to_numpy(column: Any) -> np.ndarray:
     """One Arrow column as numpy: dictionary-encoded text as an object array of its labels (None where null)."""
+    import pyarrow as pa
+
     if isinstance(column, pa.ChunkedArray):
         column = column.chunk(0) if column.num_chunks == 1 else column.combine_chunks()
     if not pa.types.is_dictionary(column.type):

@@ -14,7 +14,6 @@ import re
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from ..errors import DataError
 
@@ -45,6 +44,8 @@ def time_in_seconds(values: np.ndarray) -> np.ndarray:
 
 def _describe(value: Any) -> str | None:
     """What a non-number ``value`` is, as a few words with the value (None when it is a number or blank)."""
+    import pandas as pd
+
     if value is None or isinstance(value, float) and np.isnan(value):
         return None
     if isinstance(value, (bool, np.bool_)):
@@ -138,6 +139,8 @@ def check_numbers(columns: dict, source: str, names: list[str]) -> None:
 
 
 def _blank(value: Any) -> bool:
+    import pandas as pd
+
     try:
         return bool(pd.isna(value))
     except (TypeError, ValueError):
@@ -149,6 +152,8 @@ def _as_numbers(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if raw.dtype.kind in "fiub":
         values = raw.astype(float)
     else:
+        import pandas as pd
+
         try:
             values = pd.to_numeric(raw, errors="coerce")
         except (TypeError, ValueError):

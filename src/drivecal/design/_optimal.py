@@ -47,7 +47,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
 from ._assess import DesignReport, assess_design, predict_segments
 from ._bench_limits import (CURRENT_MARGIN, SPEED_FRACTION, TORQUE_MARGIN, VOLTAGE_FRACTION, margin_problems,
@@ -386,6 +385,8 @@ def optimize_plan(
 
     par = build_param(plan, specs, budget, least, VOLTAGE_FRACTION)
     objective, scales = _objective_fn(par, motor, names)
+    import optimistix as optx  # only optimising needs it (~0.35 s to import)
+
     solver = optx.BFGS(rtol=1e-3, atol=1e-3)
     sol = optx.minimise(objective, solver, jnp.asarray(par.u0), max_steps=max_steps, throw=False)
     u = np.asarray(sol.value)
