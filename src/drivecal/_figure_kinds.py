@@ -62,7 +62,7 @@ def _finish(fig, axes, markerscale: float, title: str):
     axes[1, 0].set_ylabel("current [A]")
     axes[0, 0].legend(fontsize=8)
     axes[1, 0].legend(fontsize=8, markerscale=markerscale)
-    fig.suptitle(title)
+    fig.suptitle(title, wrap=True)
     fig.tight_layout()
     return fig
 
@@ -124,7 +124,7 @@ def estimates(names: Sequence[str], units: Sequence[str], estimate: np.ndarray, 
         ax.set(xticks=[], xlim=(-1, 1))
         ax.grid(alpha=0.3, axis="y")
     axes[0, 0].legend(fontsize=8, loc="best")
-    fig.suptitle(f"Estimates with 95 % confidence intervals, against the {reference}")
+    fig.suptitle(f"Estimates with 95 % confidence intervals, against the {reference}", wrap=True)
     fig.tight_layout()
     return fig
 
@@ -164,7 +164,7 @@ def identifiability(reports: Sequence[Mapping]):
     ax_p.set_title("Per-parameter sensitivity")
     ax_p.grid(alpha=0.3, axis="y", which="both")
     ax_p.legend(fontsize=8)
-    fig.suptitle("Identifiability before fitting")
+    fig.suptitle("Identifiability before fitting", wrap=True)
     fig.tight_layout()
     return fig
 
@@ -223,7 +223,8 @@ def residuals(segments: Sequence[Mapping], sigma_hat: float | None = None):
         axes[1, j].set_xlabel("time [ms]")
     axes[0, 0].set_ylabel("i_d residual [mA]")
     axes[1, 0].set_ylabel("i_q residual [mA]")
-    fig.suptitle("Residuals (measured - predicted)" + (", dashed: +-1.96 sigma_hat" if sigma_hat else ""))
+    fig.suptitle("Residuals (measured - predicted)" + (", dashed: +-1.96 sigma_hat" if sigma_hat else ""),
+                 wrap=True)
     fig.tight_layout()
     return fig
 
@@ -282,7 +283,7 @@ def flux_maps(section: Mapping):
         axes[0, col].legend(fontsize=7)
         for ax in axes[:, col]:
             ax.grid(alpha=0.3)
-    fig.suptitle("Flux and incremental inductance with 95 % bands (dotted: extrapolated)")
+    fig.suptitle("Flux and incremental inductance with 95 % bands (dotted: extrapolated)", wrap=True)
     fig.tight_layout()
     return fig
 

@@ -22,6 +22,9 @@ import threading
 from typing import Any, Mapping, Sequence
 
 import matplotlib
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from PIL import Image
 
 from ._figure_kinds import FIGURES, plt
 
@@ -29,20 +32,54 @@ from ._figure_kinds import FIGURES, plt
 PROCESSES_ENV = "DRIVECAL_FIGURE_PROCESSES"
 #: Seconds a figure may take in a worker before the parent draws it itself.
 WORKER_TIMEOUT_S = 120.0
+#: Margin left around a figure's content in its PNG (inches; savefig's default for a tight box).
+PAD_IN = 0.1
 
 
 def png_bytes(fig, dpi: int) -> bytes:
-    """The PNG of a matplotlib figure (tight bounding box, no ``Software`` metadata); the figure is closed."""
+    """The PNG of a matplotlib figure drawn once at ``dpi`` (dots per inch), trimmed to its content; closes the figure.
+
+    One draw on the figure's own canvas (a figure laid out at ``dpi`` keeps the text sizes measured for its
+    layout), then the uniform margin around the content is cut to :data:`PAD_IN`: the tight box of
+    ``savefig(bbox_inches="tight")``, without its second draw. Where the content reaches an edge of the
+    canvas (it may stick out), that ``savefig`` is used instead. An opaque figure is saved as RGB; no
+    ``Software`` metadata.
+    """
     matplotlib.rcParams["svg.hashsalt"] = "drivecal"
+    fig.dpi = dpi
+    canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
+    canvas.draw()
+    rgba = _trimmed(np.asarray(canvas.buffer_rgba()), round(PAD_IN * dpi))
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight", metadata={"Software": None})
+    if rgba is None:
+        fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight", pad_inches=PAD_IN, metadata={"Software": None})
+    else:
+        opaque = bool((rgba[..., 3] == 255).all())
+        Image.fromarray(np.ascontiguousarray(rgba[..., :3] if opaque else rgba)).save(buf, format="png", dpi=(dpi, dpi))
     plt.close(fig)
     return buf.getvalue()
 
 
+def _trimmed(rgba: np.ndarray, pad: int) -> np.ndarray | None:
+    """An image, shape (rows, columns, 4), cut to its content (what differs from its corner's colour) with ``pad``
+    pixels around it; None where the content reaches an edge."""
+    content = (rgba != rgba[0, 0]).any(axis=2)
+    rows, cols = np.flatnonzero(content.any(axis=1)), np.flatnonzero(content.any(axis=0))
+    if not rows.size:
+        return rgba
+    if rows[0] == 0 or cols[0] == 0 or rows[-1] == rgba.shape[0] - 1 or cols[-1] == rgba.shape[1] - 1:
+        return None
+    return rgba[max(rows[0] - pad, 0):rows[-1] + pad + 1, max(cols[0] - pad, 0):cols[-1] + pad + 1]
+
+
 def render(name: str, kwargs: Mapping[str, Any], dpi: int) -> bytes:
-    """Draw figure ``name`` of :data:`FIGURES` from ``kwargs`` and return its PNG (a worker's job)."""
-    return png_bytes(FIGURES[name](**kwargs), dpi)
+    """Draw figure ``name`` of :data:`FIGURES` from ``kwargs`` and return its PNG (a worker's job).
+
+    The figure is built at ``dpi`` (dots per inch), so that its layout and its PNG share one renderer.
+    """
+    with matplotlib.rc_context({"figure.dpi": dpi}):
+        fig = FIGURES[name](**kwargs)
+    return png_bytes(fig, dpi)
 
 
 def serve() -> None:
