@@ -54,8 +54,8 @@ def png_bytes(fig, dpi: int) -> bytes:
     if rgba is None:
         fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight", pad_inches=PAD_IN, metadata={"Software": None})
     else:
-        opaque = bool((rgba[..., 3] == 255).all())
-        Image.fromarray(np.ascontiguousarray(rgba[..., :3] if opaque else rgba)).save(buf, format="png", dpi=(dpi, dpi))
+        image = Image.fromarray(rgba)
+        (image.convert("RGB") if image.getextrema()[3] == (255, 255) else image).save(buf, format="png", dpi=(dpi, dpi))
     plt.close(fig)
     return buf.getvalue()
 
@@ -63,7 +63,8 @@ def png_bytes(fig, dpi: int) -> bytes:
 def _trimmed(rgba: np.ndarray, pad: int) -> np.ndarray | None:
     """An image, shape (rows, columns, 4), cut to its content (what differs from its corner's colour) with ``pad``
     pixels around it; None where the content reaches an edge."""
-    content = (rgba != rgba[0, 0]).any(axis=2)
+    pixels = rgba.view(np.uint32)[..., 0]  # one number per pixel: its four bytes
+    content = pixels != pixels[0, 0]
     rows, cols = np.flatnonzero(content.any(axis=1)), np.flatnonzero(content.any(axis=0))
     if not rows.size:
         return rgba
