@@ -1,17 +1,20 @@
-"""The demo's figures plus HTML report alone, before and after: ``write_demo_outputs`` on one saved demo result.
+"""The demo's figures plus HTML report, before and after: ``write_demo_outputs`` on one saved demo result.
 
 The demo (bench and fits of both designs) runs once, in a process of its own; its ``DemoResult`` and
 result JSON are pickled. Then, for the baseline tree (a commit checked out as a detached worktree under
 /tmp) and this one, interleaved (baseline, now, baseline, now, ...), fresh processes load them and time
 ``write_demo_outputs(result, DIR)``: the 7 PNG files, ``report.json`` and ``report.html`` with its 12
 figures. The result JSON is the one built before (``DemoResult.to_dict`` returns it), so only the figures
-and the HTML are timed. Three ways, each a fresh process per run:
+and the HTML are timed. Each way is a fresh process per run:
 
-  in process, first call  no workers, the first call in the process: matplotlib's import included
-                          (what ``benchmarks/demo_phases.py``'s "figures + HTML" phase measures);
-  in process, warm        no workers, the calls after it (matplotlib loaded, its caches warm);
-  workers                 a ``FigureRenderer`` started before and ready (one worker per core, as
-                          ``drivecal demo --out`` starts them while it fits), the caller drawing too.
+  in process   no workers: the first call in the process (matplotlib's import included, as in
+               ``benchmarks/demo_phases.py``'s "figures + HTML" phase), and the calls after it, also as
+               CPU seconds of the process (its wall time were a core its own: the machine is shared);
+  workers      a ``FigureRenderer`` started before and ready (one worker per core, as ``drivecal demo
+               --out`` starts them while it fits), the caller drawing too; the first call, and the next;
+  command      ``drivecal demo --out DIR`` itself, in one process, on a compilation cache filled by a run
+               before: the whole command, its result JSON (the workers draw the 7 files meanwhile), and
+               what the figures and the HTML add after it (what a person waits for them).
 
 Where the time goes (one process per tree, after a warm-up pass, median of the runs): per figure the
 artists, the layout (``tight_layout``), the PNG (draws and encoding) and its encoding alone; the HTML and
@@ -26,6 +29,8 @@ read the ratios.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import os
 import pickle
@@ -41,7 +46,7 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path(__file__).parent / "results" / "bench_figures.json"
 #: The commit this round of figure work started from.
 BASELINE_COMMIT = "76b0222"
-MODES = ("in process", "workers")
+MODES = ("in process", "workers", "command")
 
 
 # --- in the child processes (PYTHONPATH: the tree timed) --------------------------------------------
@@ -72,21 +77,26 @@ class _Replay:
 
     def submit(self, name, kwargs, dpi):
         self.jobs.append((name, kwargs, dpi))
-        return self._Done(self.draw(name, kwargs, dpi) if self.draw else self.pngs[len(self.jobs) - 1])
+        if self.draw:
+            return self._Done(self.draw(name, kwargs, dpi))
+        return self._Done(self.pngs[(len(self.jobs) - 1) % len(self.pngs)])  # each call submits the same jobs in turn
 
     def render_all(self, jobs):
         return [self.submit(*job).result() for job in jobs]
 
 
-def _timed_calls(result, calls: int, renderer=None) -> list[float]:
+def _timed_calls(result, calls: int, renderer=None, cpu: list | None = None) -> list[float]:
+    """Wall seconds of ``calls`` calls of ``write_demo_outputs``; this process's CPU seconds of each go to ``cpu``."""
     from drivecal.demo import write_demo_outputs
 
     out = []
     for _ in range(calls):
         with tempfile.TemporaryDirectory(prefix="drivecal-figs-") as tmp:
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             write_demo_outputs(result, tmp, renderer)
             out.append(time.perf_counter() - t0)
+            if cpu is not None:
+                cpu.append(time.process_time() - c0)
     return out
 
 
@@ -94,8 +104,9 @@ def child_run(path: str, mode: str, calls: int) -> dict:
     """``calls`` timed calls of ``write_demo_outputs`` in this process, ``mode`` of :data:`MODES`."""
     result, _ = _load(path)
     if mode == "in process":
+        cpu: list[float] = []
         return {"mode": mode, "matplotlib_loaded_before": "matplotlib" in sys.modules,
-                "calls_s": _timed_calls(result, calls)}
+                "calls_s": _timed_calls(result, calls, cpu=cpu), "cpu_s": cpu}
     from drivecal._figures import FigureRenderer  # loaded at the command's start, as `drivecal demo --out` does
 
     with FigureRenderer() as renderer:
@@ -106,8 +117,37 @@ def child_run(path: str, mode: str, calls: int) -> dict:
         return {"mode": mode, "processes": renderer.processes, "calls_s": _timed_calls(result, calls, renderer)}
 
 
+def child_command() -> dict:
+    """``drivecal demo --out DIR`` in this process: the whole command, its result JSON, and what comes after it."""
+    t0 = time.perf_counter()
+    from drivecal import demo
+    from drivecal.cli import main
+
+    marks = {}
+    to_dict, write = demo._demo.DemoResult.to_dict, demo.write_demo_outputs
+
+    def timed_to_dict(self):
+        start = time.perf_counter()
+        doc = to_dict(self)
+        marks["json_end"] = time.perf_counter()
+        marks["result_json_s"] = marks["json_end"] - start
+        return doc
+
+    def timed_write(*args, **kwargs):
+        out = write(*args, **kwargs)
+        marks["after_result_json_s"] = time.perf_counter() - marks["json_end"]
+        return out
+
+    demo._demo.DemoResult.to_dict, demo.write_demo_outputs = timed_to_dict, timed_write
+    with tempfile.TemporaryDirectory(prefix="drivecal-figs-") as tmp, contextlib.redirect_stdout(io.StringIO()):
+        main(["demo", "--out", str(Path(tmp) / "out")])
+    return {"command_s": time.perf_counter() - t0, **{k: v for k, v in marks.items() if k.endswith("_s")}}
+
+
 def child_phases(path: str, runs: int) -> dict:
     """Where the time goes in this tree, in one process: see the module's docstring."""
+    import numpy  # noqa: F401  (loaded before matplotlib in a drivecal process)
+
     t0 = time.perf_counter()
     import matplotlib.pyplot  # noqa: F401
 
@@ -182,7 +222,7 @@ def _save_demo(path: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--runs", type=int, default=5, help="fresh processes per tree and mode (interleaved)")
+    parser.add_argument("--runs", type=int, default=5, help="fresh processes per tree and way (interleaved)")
     parser.add_argument("--calls", type=int, default=3, help="calls per process (the first reported apart)")
     parser.add_argument("--baseline-commit", default=BASELINE_COMMIT)
     parser.add_argument("--result", type=Path, default=None,
@@ -190,8 +230,10 @@ def main() -> None:
     parser.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        kind, path, n = args.child
-        print(json.dumps(child_run(path, kind, int(n)) if kind in MODES else child_phases(path, int(n))))
+        kind, *rest = args.child
+        out = (child_command() if kind == "command" else child_run(rest[0], kind, int(rest[1])) if kind in MODES
+               else child_phases(rest[0], int(rest[1])))
+        print(json.dumps(out))
         return
 
     sys.path.insert(0, str(Path(__file__).parent))
@@ -210,29 +252,46 @@ def main() -> None:
     if not pkl.exists():
         with console.status("running the demo once..."):
             _save_demo(pkl)
-    samples = {(tree, mode, when): [] for tree in trees for mode in MODES for when in ("first", "warm")}
-    with console.status("timing...") as status:
+    #: (way, what): samples per tree
+    labels = {("in process", "first"): "in process, first call (matplotlib import included)",
+              ("in process", "next"): "in process, next calls",
+              ("in process", "cpu"): "in process, next calls: CPU seconds (the wall time on an idle core)",
+              ("workers", "first"): "workers ready, first call", ("workers", "next"): "workers ready, next calls",
+              ("command", "after_result_json_s"): "`drivecal demo --out`: after the result JSON (figures + HTML)",
+              ("command", "result_json_s"): "`drivecal demo --out`: the result JSON (the 7 files drawn meanwhile)",
+              ("command", "command_s"): "`drivecal demo --out`: whole command (in one process, warm cache)"}
+    samples = {(tree, key): [] for tree in trees for key in labels}
+    with tempfile.TemporaryDirectory(prefix="drivecal-figs-cache-") as cache, console.status("timing...") as status:
+        os.environ["DRIVECAL_JAX_CACHE_DIR"] = cache  # the children's compilation cache: filled by a run first
+        for tree, src in trees.items():
+            status.update(f"filling the compilation cache: {tree}")
+            _child(src, "command")
         for run in range(args.runs):
             for mode in MODES:
                 for tree, src in trees.items():
                     status.update(f"run {run + 1}/{args.runs}: {mode}, {tree}")
-                    calls = _child(src, mode, str(pkl), str(args.calls))["calls_s"]
-                    samples[tree, mode, "first"].append(calls[0])
-                    samples[tree, mode, "warm"].append(statistics.median(calls[1:]))
+                    if mode == "command":
+                        for key, value in _child(src, mode).items():
+                            samples[tree, (mode, key)].append(value)
+                        continue
+                    out = _child(src, mode, str(pkl), str(args.calls))
+                    samples[tree, (mode, "first")].append(out["calls_s"][0])
+                    samples[tree, (mode, "next")].append(statistics.median(out["calls_s"][1:]))
+                    if "cpu_s" in out:
+                        samples[tree, (mode, "cpu")].append(statistics.median(out["cpu_s"][1:]))
         phases = {}
         for tree, src in trees.items():
             status.update(f"where the time goes: {tree}")
             phases[tree] = _child(src, "phases", str(pkl), str(args.runs))
 
-    med = {key: statistics.median(v) for key, v in samples.items()}
-    rows = [(f"{mode}, {'first call (matplotlib import included)' if when == 'first' else 'warm'}",
-             med["baseline", mode, when], med["now", mode, when]) for mode in MODES for when in ("first", "warm")]
-    table = Table(title=f"The demo's figures + HTML (write_demo_outputs, result JSON built before), median of "
-                        f"{args.runs} runs, {os.cpu_count()} cores", title_justify="left")
+    rows = [(labels[key], statistics.median(samples["baseline", key]), statistics.median(samples["now", key]))
+            for key in labels]
+    table = Table(title=f"The demo's figures + HTML (write_demo_outputs, result JSON built before; and the command), "
+                        f"median of {args.runs} runs, {os.cpu_count()} cores", title_justify="left")
     for col in ("way", escape(f"baseline {args.baseline_commit} [s]"), "now [s]", "baseline / now"):
         table.add_column(col, justify="left" if col == "way" else "right")
     for way, base, now in rows:
-        table.add_row(way, f"{base:.2f}", f"{now:.2f}", f"{base / now:.2f}x")
+        table.add_row(escape(way), f"{base:.2f}", f"{now:.2f}", f"{base / now:.2f}x")
     console.print(table)
     fig = Table(title="Where the time goes, per figure (one process, after a warm-up) [ms]: baseline / now",
                 title_justify="left")
@@ -256,7 +315,8 @@ def main() -> None:
                     "load_average": os.getloadavg()},
         "baseline_commit": args.baseline_commit, "runs": args.runs, "calls": args.calls,
         "rows": [{"way": w, "baseline_median_s": b, "now_median_s": n, "baseline_over_now": b / n} for w, b, n in rows],
-        "samples_s": {" | ".join(k): v for k, v in samples.items()}, "phases": phases}, indent=2) + "\n")
+        "samples_s": {f"{tree} | {labels[key]}": v for (tree, key), v in samples.items()}, "phases": phases},
+        indent=2) + "\n")
     console.print(f"wrote {RESULTS.relative_to(ROOT)}")
 
 
