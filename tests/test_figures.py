@@ -81,3 +81,43 @@ def test_a_script_without_a_main_guard_runs_once(tmp_path):
     """))
     subprocess.run([sys.executable, str(script)], check=True, env={**os.environ, "PYTHONPATH": SRC}, timeout=120)
     assert marker.read_text() == "run\n"
+
+
+def test_a_figure_is_drawn_once(monkeypatch):
+    """Its layout, then one draw: no second draw for the tight box (the figures' cost is their draws)."""
+    from matplotlib.figure import Figure
+
+    draws = []
+    draw = Figure.draw
+    monkeypatch.setattr(Figure, "draw", lambda self, renderer: (draws.append(1), draw(self, renderer))[1])
+    for job in _jobs():
+        draws.clear()
+        _figures.render(*job)
+        assert len(draws) == 1, job[0]
+
+
+def test_the_png_is_cut_to_the_content_and_nothing_sticks_out():
+    import io
+
+    from PIL import Image
+
+    def png(text_x: float):
+        fig = _figures.plt.figure(figsize=(4.0, 3.0))
+        fig.add_subplot().plot([0, 1], [0, 1])
+        fig.text(text_x, 0.5, "a note that does not fit in the figure" if text_x > 0.5 else "")
+        return Image.open(io.BytesIO(_figures.png_bytes(fig, 50)))
+
+    inside = png(0.1)
+    assert inside.mode == "RGB" and inside.size[0] < 4.0 * 50 and inside.size[1] < 3.0 * 50  # margins cut
+    outside = png(0.8)
+    assert outside.size[0] > 4.0 * 50  # the note sticks out: the PNG holds all of it (savefig's tight box)
+
+
+def test_log_axes_are_labelled_in_plain_text():
+    """``10⁻³`` with superscripts, not mathtext (whose parser costs tens of ms a label); the same ticks."""
+    fig = _figures.FIGURES["identifiability"]([{"label": "a", "names": ("R", "Ld"), "rank": 2, "dead": (),
+                                                "singular_values": [1.0, 1e-3], "sensitivity": [2.0, 1e-4]}])
+    fig.canvas.draw()
+    labels = [t.get_text() for ax in fig.axes for t in ax.get_yticklabels() if t.get_text()]
+    _figures.plt.close(fig)
+    assert "10⁻³" in labels and "10⁰" in labels and not any("$" in t for t in labels)

@@ -156,12 +156,10 @@ def write_demo_outputs(result: DemoResult, out_dir: str | Path, renderer=None) -
          result.poor.label: result.poor.calibration.identifiability})
     pending = {name: renderer.submit(kind, kwargs, dpi=110) for name, (kind, kwargs) in jobs.items()}
     doc = json.loads(json.dumps(result.to_dict(), allow_nan=False))
-    written = []
+    write_json(out / "report.json", doc)
+    # The page's figures queue behind the files' (the workers take those first, this process draws the page's
+    # from their end), so no process waits while another still draws.
+    write_html_report(doc, out / "report.html", renderer=renderer)
     for name, job in pending.items():
         write_bytes(out / name, job.result())
-        written.append(out / name)
-    write_json(out / "report.json", doc)
-    written.append(out / "report.json")
-    write_html_report(doc, out / "report.html", renderer=renderer)
-    written.append(out / "report.html")
-    return written
+    return [out / name for name in pending] + [out / "report.json", out / "report.html"]

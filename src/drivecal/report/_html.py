@@ -58,7 +58,7 @@ details.statistics summary{cursor:pointer;font-weight:bold}
 def figure_data_uri(fig) -> str:
     """PNG of a matplotlib figure as a ``data:`` URI; the figure is closed.
 
-    Deterministic: fixed dpi, tight bounding box, no ``Software`` metadata.
+    Deterministic: fixed dpi, drawn once and cut to its content, no ``Software`` metadata.
     """
     from .. import _figures
 

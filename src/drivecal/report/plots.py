@@ -3,7 +3,7 @@
 Each ``*_figure`` function has a ``*_job`` twin giving ``(name, inputs)``: the
 figure's plain inputs (numbers, arrays, strings), which ``drivecal._figures``
 draws in this process or in a worker (``FigureRenderer``). The figures
-themselves are defined once, in ``drivecal._figures``.
+themselves are defined once, in ``drivecal._figure_kinds``.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
-from .. import _figures
-from .._figures import plt  # noqa: F401  (pyplot on the Agg backend, for the fleet report's figures)
+from .. import _figure_kinds
+from .._figure_kinds import plt  # noqa: F401  (pyplot on the Agg backend, for the fleet report's figures)
 from ..physics import UNITS
 
 if TYPE_CHECKING:
@@ -26,7 +26,7 @@ Job = tuple[str, dict[str, Any]]
 
 def _build(job: Job):
     name, kwargs = job
-    return _figures.FIGURES[name](**kwargs)
+    return _figure_kinds.FIGURES[name](**kwargs)
 
 
 def _segments(data: "BenchData") -> list[dict[str, Any]]:
