@@ -232,29 +232,29 @@ def test_import_drivecal_and_help_do_not_load_jax():
             "assert r.exit_code == 0, r.output\n"
             "for c in sorted(drivecal.cli.cli.list_commands(None)):\n"
             "    r = CliRunner().invoke(drivecal.cli.cli, [c, '--help'])\n"
-            "    assert r.exit_code == 0, (c, r.output)\n"
-            "heavy = sorted(m for m in ('jax', 'jaxonomy', 'matplotlib', 'pandas', 'dask', 'scipy') if m in sys.modules)\n"
-            "print(heavy)\n")
+            "    assert r.exit_code == 0, (c, r.output)\n")
+    loaded = _loaded_after(code, ("jax", "jaxonomy", "matplotlib", "pandas", "dask", "scipy"))
+    assert loaded == "[]", f"--help imported {loaded}"
+
+
+def _loaded_after(code: str, heavy: tuple[str, ...]) -> str:
+    """Which of the ``heavy`` modules a fresh interpreter has loaded after running ``code`` (a sorted list's repr)."""
+    code = f"import sys\n{code}print(sorted(m for m in {heavy!r} if m in sys.modules))\n"
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
                           env={**os.environ, "PYTHONWARNINGS": "ignore"})
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.strip() == "[]", f"--help imported {proc.stdout.strip()}"
+    return proc.stdout.strip()
 
 
 def test_sub_packages_load_heavy_libraries_only_where_used():
     """Importing the sub-packages (what a command does before its work) loads no optimistix (a solve being traced
     and plan optimisation load it), no pandas or pyarrow (reading and writing tables) and no scipy.special (the
     first interval or test): `drivecal report`, `gains`, `design` and `plan` then never load them."""
-    code = ("import sys\n"
-            "import drivecal.cli._design, drivecal.cli._gains, drivecal.cli._plan, drivecal.cli._report\n"
+    code = ("import drivecal.cli._design, drivecal.cli._gains, drivecal.cli._plan, drivecal.cli._report\n"
             "import drivecal.data, drivecal.design, drivecal.diagnose, drivecal.fitting, drivecal.identify\n"
-            "import drivecal.report, drivecal.results, drivecal.selection\n"
-            "heavy = ('optimistix', 'lineax', 'pandas', 'pyarrow', 'scipy.special')\n"
-            "print(sorted(m for m in heavy if m in sys.modules))\n")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                          env={**os.environ, "PYTHONWARNINGS": "ignore"})
-    assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.strip() == "[]", f"importing the sub-packages loaded {proc.stdout.strip()}"
+            "import drivecal.report, drivecal.results, drivecal.selection\n")
+    loaded = _loaded_after(code, ("optimistix", "lineax", "pandas", "pyarrow", "scipy.special"))
+    assert loaded == "[]", f"importing the sub-packages loaded {loaded}"
 
 
 @pytest.mark.parametrize("old, name, new", [
