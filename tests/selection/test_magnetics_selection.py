@@ -120,6 +120,8 @@ def test_pm_assisted_motor_s_iron_bridge_is_found_and_fitted(pm_syrm_selection):
     cal = sel.calibration
     assert sel.magnetic_model == "saturating" and bool(cal.converged) and all(cal.identifiable)
     assert set(sel.included) == {"saturation_d", "saturation_q", "cross_saturation", "iron_bridge"}
+    bridge = next(c for c in sel.to_dict()["effects"] if c["effect"] == "iron_bridge")
+    assert "the law without it did not converge" in bridge["note"]  # tried only after the law about the magnet
     assert [float(getattr(cal.motor, e)) for e in EXPONENTS] == [4.0, 6.0, 1.0, 1.0]
     assert float(cal.sigma_hat) == pytest.approx(0.02, rel=3.0 / np.sqrt(2.0 * cal.dof))
     z = {n: (float(cal.estimate[i]) - float(getattr(truth, n))) / float(cal.se[i]) for i, n in enumerate(cal.names)}
