@@ -22,25 +22,6 @@ if cache_enabled():
     # cache hit; keep C++ logging to fatal errors unless the user chose a level.
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
-#: XLA:CPU settings drivecal runs with, each unless ``XLA_FLAGS`` already names it. The legacy fusion emitters
-#: compile drivecal's kernels with about half the CPU time of the MLIR ones jaxlib 0.9 uses by default (the
-#: score tests' sensitivity Jacobian on the default plan: 10 s against 18.5 s; a cold ``drivecal demo --out``:
-#: 66 s against 90 s of CPU) and run them as fast; results agree to ~1e-11 relative (the demo prints the
-#: same digits). ``benchmarks/bench_workflow.py`` measures it.
-XLA_DEFAULTS = ("--xla_cpu_use_fusion_emitters=false",)
-
-
-def _set_xla_defaults() -> None:
-    """Add :data:`XLA_DEFAULTS` to ``XLA_FLAGS`` (read when JAX starts its CPU backend, after this import)."""
-    flags = os.environ.get("XLA_FLAGS", "")
-    for flag in XLA_DEFAULTS:
-        if flag.split("=", 1)[0] not in flags:
-            flags = f"{flags} {flag}".strip()
-    os.environ["XLA_FLAGS"] = flags
-
-
-_set_xla_defaults()
-
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
