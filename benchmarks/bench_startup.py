@@ -101,7 +101,9 @@ def ensure_baseline(path: Path, commit: str) -> None:
 
 
 def env_for(src: Path) -> dict[str, str]:
-    return {**os.environ, "PYTHONPATH": str(src), "PYTHONWARNINGS": "ignore"}
+    env = {**os.environ, "PYTHONPATH": str(src), "PYTHONWARNINGS": "ignore"}
+    env.pop("PYTHONDONTWRITEBYTECODE", None)  # as on a user's machine: compiled modules kept (bench_workflow)
+    return env
 
 
 def check_origin(src: Path) -> str:

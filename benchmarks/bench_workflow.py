@@ -69,6 +69,9 @@ CASES = (
 
 def _env(src: Path, cache: str | None) -> dict[str, str]:
     env = {**os.environ, "PYTHONPATH": str(src), "PYTHONWARNINGS": "ignore"}
+    # as on a user's machine: Python keeps the compiled modules (a shell here sets PYTHONDONTWRITEBYTECODE,
+    # which would make every process compile drivecal's ~200 modules from source again)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
     if cache is None:
         env["DRIVECAL_JAX_CACHE"] = "0"
     else:
