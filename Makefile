@@ -37,8 +37,9 @@ demo: $(STAMP)
 test: $(STAMP) browser
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not long"
 
-# The tests marked `long` (over ~5 min each on 2 cores; ~50 min of the two workers' time): the corpus end to
-# end, the SyRM's default selection, the backward step on a PWM bench.
+# The tests marked `long` (about 3 min or more each on 2 cores; ~105 min of the two workers' time): the corpus
+# end to end, the SyRM's and the PM-SyRM's default selections and plans, the saturating and dead-time
+# coverage, the backward step on a PWM bench, the bench-effects page's examples.
 test-long: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m long
 

@@ -241,8 +241,13 @@ def _runnable(block: Block) -> bool:
 
 #: The pages with examples (run or marked skipped); the others have nothing to run.
 EXAMPLE_PAGES = [page for page in PAGES if any(_runnable(block) for block in blocks(page))]
+#: Pages whose examples take over ~5 min on 2 cores: ``long`` tests (``make test-long`` runs them, ``make test`` not).
+#: bench-effects.md selects the three bench effects of an inverter bench and the iron bridge of a PM-SyRM (417 s).
+LONG_PAGES = ("bench-effects.md",)
 #: A page with a slow example runs as a slow test (``-m "not slow"`` leaves it out): its examples share files.
-PAGE_PARAMS = [pytest.param(page, id=page.name, marks=[pytest.mark.slow] if any(b.slow for b in blocks(page)) else [])
+PAGE_PARAMS = [pytest.param(page, id=page.name,
+                            marks=([pytest.mark.slow] if any(b.slow for b in blocks(page)) else [])
+                            + ([pytest.mark.long] if page.name in LONG_PAGES else []))
                for page in EXAMPLE_PAGES]
 
 

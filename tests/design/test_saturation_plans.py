@@ -227,6 +227,7 @@ def test_plan_cli_reads_the_syrm_law_from_its_motor_file(tmp_path, capsys, syrm_
     assert max(_peaks(syrm_bench.currents)) <= plan.current_limit
 
 
+@pytest.mark.long
 @pytest.mark.slow  # a plan through the CLI and nine segments on the engine (~40 s)
 def test_plan_for_the_published_pm_syrm_stays_under_its_limit_on_its_own_law(tmp_path, capsys):
     """The 5.5-kW PM-SyRM of Lelli et al. (ICEM 2024, doi 10.1109/ICEM60801.2024.10700403; its published law in
@@ -248,6 +249,7 @@ def test_plan_for_the_published_pm_syrm_stays_under_its_limit_on_its_own_law(tmp
     assert max(_peaks(bench.currents)[:2]) >= 0.75 * plan.current_limit
 
 
+@pytest.mark.long
 @pytest.mark.slow  # a plan through the CLI (the bridged law's identifiability compiles, ~60 s) and its bench run
 def test_plan_for_the_pm_syrm_s_iron_bridge_identifies_it_and_stays_under_its_limit(tmp_path, capsys):
     """The same PM-SyRM planned for its whole law, the iron bridge's four coefficients included, from its motor

@@ -17,6 +17,7 @@ from drivecal.bench import SATURATION_LEVELS_PLAN, engine_bench, hinkkanen_syrm
 NAMES = ("R", "Ld", "Lq", "sat_d", "sat_q", "sat_dq")
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_saturating_fit_coverage():
     truth = hinkkanen_syrm(i_ref=40.0)
@@ -44,6 +45,7 @@ def _assert_coverage(batch: dc.Calibration, truth: dc.MotorParams, names: tuple[
     assert np.all(np.abs(spread - 1.0) <= 0.20), dict(zip(names, spread))
 
 
+@pytest.mark.long
 @pytest.mark.slow  # 200 flux-state fits of eleven coefficients (~2 min) and their compilation
 def test_pm_assisted_fit_coverage_with_its_iron_bridge():
     """The PM-SyRM of Lelli, Hinkkanen and Giulii Capponi (ICEM 2024, doi 10.1109/ICEM60801.2024.10700403;

@@ -139,6 +139,7 @@ def test_resume_with_the_same_motor_file_goes_on(one_motor):
     assert summary.done_before == 1 and summary.total == 2
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_a_flagged_motor_is_fitted_again_with_its_effects(tmp_path):
     """In a batch, a motor whose residuals are not white goes through the effect selection (fleet/_effects.py)."""

@@ -112,6 +112,7 @@ def pm_syrm_selection():
     return truth, sel, bench
 
 
+@pytest.mark.long
 @pytest.mark.slow  # the default selection: the law about the magnet tried and failed, then the bridge (~3-4 min)
 def test_pm_assisted_motor_s_iron_bridge_is_found_and_fitted(pm_syrm_selection):
     """Issue 18's PM-assisted motor: the default choice is the saturating law with the iron bridge, its exponents
@@ -133,6 +134,7 @@ def test_pm_assisted_motor_s_iron_bridge_is_found_and_fitted(pm_syrm_selection):
     assert not any(w in " ".join(verdict["details"]) for w in ("dead time", "offsets", "delay other"))
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_pm_assisted_flux_map_bands_cover_the_true_maps(pm_syrm_selection):
     """Issue 18: the 95 % bands of the bridged law cover the published PM-SyRM's maps at >= 93 % of the grid

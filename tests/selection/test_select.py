@@ -95,6 +95,7 @@ def test_default_fit_models_the_dead_time_by_itself(dead_time_clean):
         assert abs(value) < 3.0 * se, (name, value, se)
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_coverage_on_the_dead_time_bench(dead_time_clean):
     """Monte Carlo over 224 noise seeds, one batched fit of the model the selection picks on this bench.
