@@ -40,7 +40,8 @@ def saturation_columns(motor: MotorParams, experiment: Experiment) -> np.ndarray
                 changes = dict(zip(exponents, candidate))
                 changes[name] = float(getattr(motor, name)) + sign * SATURATION_STEP
                 rows.append(motor.replace(**changes))
-    batch = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x, dtype=float) for x in xs]), *rows)
+    # Stacked on the host (NumPy): one device array per leaf, not one per leaf and row (~0.4 s of a warm fit).
+    batch = jax.tree_util.tree_map(lambda *xs: np.stack([np.asarray(x, dtype=np.float64) for x in xs]), *rows)
     out = np.asarray(cached_call(_batched_currents, "saturation_columns", batch, experiment))
     count = len(EXPONENT_CANDIDATES[MAGNETIC[0]][1])
     out = out.reshape(len(MAGNETIC), count, 2, *out.shape[1:])
