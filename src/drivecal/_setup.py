@@ -9,7 +9,9 @@ switches JAX to double precision for the whole process.
 from __future__ import annotations
 
 import os
+import threading
 from pathlib import Path
+from typing import Any
 
 
 def cache_enabled() -> bool:
@@ -49,6 +51,7 @@ def _enable_compilation_cache() -> None:
     # another process still writes it is a truncated zlib stream, which JAX
     # rejects and recompiles (tried: cut at 30-99 %), so the lock buys nothing.
     _keep_loadable_kernels_only()
+    _remember_cache_hits()
 
 
 #: The cache folder's layout: 2 since kernels of too many object files are no longer written
@@ -83,6 +86,41 @@ def _keep_loadable_kernels_only() -> None:
 
     checked._drivecal_checked = True
     compilation_cache.put_executable_and_time = checked
+
+
+#: The latest compilation-cache hit of this thread: ``latest`` is (the loaded executable, its serialised
+#: bytes as the cache holds them), or None. ``model._lowered_cache`` keeps those bytes beside a program:
+#: jaxlib 0.9.2 serialises an executable loaded from the cache without its code.
+CACHE_HITS = threading.local()
+
+
+def _remember_cache_hits() -> None:
+    """Note in :data:`CACHE_HITS` each kernel the compilation cache supplies, with its serialised bytes."""
+    try:  # JAX's own module, as in _keep_loadable_kernels_only
+        from jax._src import compilation_cache
+
+        read, extract = compilation_cache.get_executable_and_time, compilation_cache.extract_executable_and_time
+    except (ImportError, AttributeError):
+        return
+    if getattr(read, "_drivecal_remembers", False):
+        return
+
+    def extracted(executable_and_time):
+        serialized, compile_time = extract(executable_and_time)
+        CACHE_HITS.serialized = serialized
+        return serialized, compile_time
+
+    def remembered(*args, **kwargs):
+        CACHE_HITS.serialized = None
+        executable, compile_time = read(*args, **kwargs)
+        if executable is not None and CACHE_HITS.serialized is not None:
+            CACHE_HITS.latest = (executable, CACHE_HITS.serialized)
+        CACHE_HITS.serialized = None
+        return executable, compile_time
+
+    remembered._drivecal_remembers = True
+    compilation_cache.extract_executable_and_time = extracted
+    compilation_cache.get_executable_and_time = remembered
 
 
 def _host_kind() -> str:

@@ -62,28 +62,47 @@ def test_a_kernel_compiled_here_is_kept_and_a_new_process_runs_it_without_loweri
     np.testing.assert_array_equal(again["b"][0], plain["b"][0])
 
 
-def test_a_kernel_the_compilation_cache_supplied_is_not_kept(store, monkeypatch):
+_CACHE_HIT_SCRIPT = """
+import shutil, sys
+import jax, jax.numpy as jnp, numpy as np
+from drivecal.model import _lowered_cache as traced
+
+@jax.jit
+def f(x):
+    return {"a": jnp.sin(x) * 2.0 + jnp.cumsum(x)}
+
+x = np.linspace(0.0, 3.0, 50)
+plain = np.asarray(f(x)["a"])
+folder = traced.directory()
+traced.call(f, "f", x)  # compiled here: the kernel goes to the compilation cache, the executable is kept
+shutil.rmtree(folder)  # as after an upgrade of drivecal: its programs go, the compilation cache stays
+traced._LOADED.clear(); jax.clear_caches()
+serialize, hits = traced._serialize, []
+traced._serialize = lambda compiled, hit: (hits.append(hit), serialize(compiled, hit))[1]
+first = traced.call(f, "f", x)  # traced again, its kernel a compilation-cache hit
+assert len(hits) == 1 and hits[0] is not None, hits
+traced._LOADED.clear(); jax.clear_caches()
+traced._runner = lambda *a: sys.exit("lowered the program again")
+again = traced.call(f, "f", x)
+assert all(entry is not None for entry in traced._LOADED.values()), "the kept executable failed"
+np.testing.assert_array_equal(np.asarray(first["a"]), plain)
+np.testing.assert_array_equal(np.asarray(again["a"]), plain)
+print("kept and ran")
+"""
+
+
+def test_a_kernel_the_compilation_cache_supplied_is_kept_with_the_cache_s_bytes(tmp_path):
     """jaxlib 0.9 serialises an executable loaded from the compilation cache without its code (it fails when
-    run): a compilation that was a cache hit keeps the program only, which a later process lowers."""
-    runner = traced._runner
+    run): where the kernel was a cache hit, the bytes the cache read are kept, and a later process runs them
+    without lowering (a fresh process with the caches on, as a user's)."""
+    import os
+    import subprocess
+    import sys
 
-    class _FromCache:
-        def __init__(self, exported):
-            self.jitted = runner(exported)
-
-        def lower(self, *leaves):
-            lowered = self.jitted.lower(*leaves)
-            traced._count_hit("/jax/compilation_cache/cache_hits")  # as JAX reports a hit, in this thread
-            return lowered
-
-    monkeypatch.setattr(traced, "_runner", _FromCache)
-    x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
-    first = traced.call(_f, "f", x, y, scale=2.5)
-    (path,) = store.glob("f-*.pkl")
-    assert _kept_executable(path) is None
-    monkeypatch.setattr(traced, "_runner", runner)
-    monkeypatch.setattr(traced, "_LOADED", {})
-    np.testing.assert_array_equal(traced.call(_f, "f", x, y, scale=2.5)["a"], first["a"])
+    env = {**os.environ, "DRIVECAL_JAX_CACHE": "1", "DRIVECAL_JAX_CACHE_DIR": str(tmp_path)}
+    done = subprocess.run([sys.executable, "-c", _CACHE_HIT_SCRIPT], env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0 and "kept and ran" in done.stdout, done.stdout + done.stderr
 
 
 def test_key_separates_shapes_statics_and_dtypes(store):

@@ -12,9 +12,11 @@ A later process loads it and runs it; its kernel is then an ordinary
 compilation-cache hit. Where this process compiled the kernel itself, the
 compiled executable is kept beside the program, and a later process runs it
 straight away: no lowering, no cache lookup (a warm ``drivecal fit`` spent
-about a sixth of its CPU time lowering the loaded programs). An executable
-the compilation cache supplied is not kept: jaxlib 0.9 serialises one without
-its code, and it fails when run.
+about a sixth of its CPU time lowering the loaded programs). Where the
+compilation cache supplied the kernel (the same program traced by an earlier
+version of drivecal), the bytes the cache holds are kept: jaxlib 0.9
+serialises an executable loaded from the cache without its code, and it fails
+when run.
 
 The same program runs whether it was just traced or loaded, so the numbers do
 not depend on the state of the cache (and they are those of the plain
@@ -32,7 +34,6 @@ import logging
 import os
 import pickle
 import tempfile
-import threading
 import zlib
 from importlib import metadata
 from pathlib import Path
@@ -44,7 +45,7 @@ import numpy as np
 logger = logging.getLogger(__name__)
 
 #: Bump when the on-disk entry changes meaning.
-_FORMAT = 5
+_FORMAT = 6
 #: Entries kept; beyond this the least recently used go (a program is ~10-50 kB compressed).
 _MAX_ENTRIES = 256
 #: Libraries whose code is traced into drivecal's computations.
@@ -54,9 +55,6 @@ _UNKEPT = b"not kept"
 
 # key -> (jitted call of the loaded program, output tree), or None: use the plain call.
 _LOADED: dict[str, tuple[Callable, Any] | None] = {}
-#: Compilation-cache hits in this thread (JAX reports them in the compiling thread): an executable the
-#: cache supplied is not kept.
-_HITS = threading.local()
 
 
 def directory() -> Path | None:
@@ -175,39 +173,49 @@ def _runner(exported: Any) -> Callable:
     return jax.jit(lambda *leaves: exported.call(*leaves))
 
 
-def _count_hit(event: str, **_: Any) -> None:
-    if event == "/jax/compilation_cache/cache_hits":
-        _HITS.count = getattr(_HITS, "count", 0) + 1
-
-
-@functools.lru_cache(maxsize=1)
-def _listen_for_hits() -> None:
-    import jax.monitoring
-
-    jax.monitoring.register_event_listener(_count_hit)
-
-
 def _compiled(exported: Any, leaves: list) -> tuple[Callable, Any]:
     """The program compiled for ``leaves``, and its serialised executable (None where it cannot be kept).
 
-    Kept only where this call compiled it (no compilation-cache hit) and it has at most
-    ``_setup.MAX_CACHED_OBJECTS`` object files (as the compilation cache: more crash the process that loads them).
+    Kept only where it has at most ``_setup.MAX_CACHED_OBJECTS`` object files (as the compilation cache:
+    more crash the process that loads them). Where the compilation cache supplied the kernel, its bytes
+    are those the cache read (:data:`_setup.CACHE_HITS`), not jaxlib's serialisation of the loaded kernel.
     """
-    from jax.experimental import serialize_executable
+    from .._setup import CACHE_HITS, MAX_CACHED_OBJECTS
 
-    from .._setup import MAX_CACHED_OBJECTS
-
-    _listen_for_hits()
-    before = getattr(_HITS, "count", 0)
+    CACHE_HITS.latest = None
     compiled = _runner(exported).lower(*leaves).compile()
-    if getattr(_HITS, "count", 0) != before:
-        return compiled, None
+    hit, CACHE_HITS.latest = CACHE_HITS.latest, None
     try:
-        payload, in_tree, out_tree = serialize_executable.serialize(compiled)
+        payload, in_tree, out_tree = _serialize(compiled, hit)
     except Exception as exc:
         logger.debug("drivecal: executable not serialisable (%s)", exc)
         return compiled, None
     return compiled, ((payload, in_tree, out_tree) if 0 < payload.count(b"\x7fELF") <= MAX_CACHED_OBJECTS else None)
+
+
+def _serialize(compiled: Any, hit: tuple | None) -> tuple[bytes, Any, Any]:
+    """``jax.experimental.serialize_executable.serialize(compiled)``, with the kernel ``hit[0]`` written as the
+    bytes ``hit[1]``; an executable loaded from the compilation cache that is not ``hit[0]`` raises."""
+    import io
+
+    from jax.experimental import serialize_executable
+    from jax._src.lib import xla_client
+
+    class Pickler(serialize_executable._JaxPjrtPickler):
+        def persistent_id(self, obj):
+            if hit is not None and obj is hit[0]:
+                return ("exec", hit[1])
+            if isinstance(obj, xla_client.LoadedExecutable) and hit is not None:
+                raise ValueError("a kernel of the compilation cache other than the one read")
+            return super().persistent_id(obj)
+
+    unloaded = getattr(compiled._executable, "_unloaded_executable", None)
+    if unloaded is None or compiled._params.const_args or getattr(getattr(unloaded, "mut", None), "in_mut", None):
+        raise ValueError("compilation does not support serialisation")
+    args_info, in_tree = jax.tree_util.tree_flatten(compiled.args_info)
+    with io.BytesIO() as file:
+        Pickler(file).dump((unloaded, args_info, compiled._no_kwargs))
+        return file.getvalue(), in_tree, compiled.out_tree
 
 
 def _executable(kept: tuple) -> Callable:
