@@ -105,6 +105,29 @@ def test_a_kernel_the_compilation_cache_supplied_is_kept_with_the_cache_s_bytes(
     assert done.returncode == 0 and "kept and ran" in done.stdout, done.stdout + done.stderr
 
 
+def test_a_program_jitted_with_compiler_options_is_kept_and_compiled_with_them(store, monkeypatch):
+    """The exported program does not carry the jit's XLA options: the kept entry compiles with them again,
+    under a key of its own."""
+    options = {"xla_cpu_use_fusion_emitters": False}
+    with_options = jax.jit(_f.__wrapped__, static_argnames=("scale",), compiler_options=options)
+    x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
+    plain = with_options(x, y, scale=2.5)
+    seen = []
+    runner = traced._runner
+    monkeypatch.setattr(traced, "_runner", lambda exported, opts=None: (seen.append(opts), runner(exported, opts))[1])
+    first = traced.call(with_options, "f", x, y, scale=2.5, compiler_options=options)
+    traced.call(_f, "f", x, y, scale=2.5)
+    assert seen == [options, None]
+    assert len(list(store.glob("f-*.pkl"))) == 2
+    path = next(p for p in store.glob("f-*.pkl") if pickle.loads(zlib.decompress(p.read_bytes()))[3] == options)
+    path.write_bytes(zlib.compress(pickle.dumps(pickle.loads(zlib.decompress(path.read_bytes()))[:2] + (None, options))))
+    monkeypatch.setattr(traced, "_LOADED", {})  # a new process, the executable not kept: lowered with the options
+    again = traced.call(with_options, "f", x, y, scale=2.5, compiler_options=options)
+    assert seen[-1] == options
+    for out in (first, again):
+        np.testing.assert_array_equal(out["a"], plain["a"])
+
+
 def test_key_separates_shapes_statics_and_dtypes(store):
     x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
     traced.call(_f, "f", x, y, scale=2.5)

@@ -45,7 +45,7 @@ import numpy as np
 logger = logging.getLogger(__name__)
 
 #: Bump when the on-disk entry changes meaning.
-_FORMAT = 6
+_FORMAT = 7
 #: Entries kept; beyond this the least recently used go (a program is ~10-50 kB compressed).
 _MAX_ENTRIES = 256
 #: Libraries whose code is traced into drivecal's computations.
@@ -168,12 +168,13 @@ def _initialize_lapack() -> None:
         jax.jit(jnp.linalg.inv).lower(jax.ShapeDtypeStruct((2, 2), jnp.float64))
 
 
-def _runner(exported: Any) -> Callable:
+def _runner(exported: Any, options: dict | None = None) -> Callable:
+    """The exported program as a jitted call, compiled with XLA ``options`` (``call``'s ``compiler_options``)."""
     _initialize_lapack()
-    return jax.jit(lambda *leaves: exported.call(*leaves))
+    return jax.jit(lambda *leaves: exported.call(*leaves), compiler_options=options or None)
 
 
-def _compiled(exported: Any, leaves: list) -> tuple[Callable, Any]:
+def _compiled(exported: Any, leaves: list, options: dict | None) -> tuple[Callable, Any]:
     """The program compiled for ``leaves``, and its serialised executable (None where it cannot be kept).
 
     Kept only where it has at most ``_setup.MAX_CACHED_OBJECTS`` object files (as the compilation cache:
@@ -183,7 +184,7 @@ def _compiled(exported: Any, leaves: list) -> tuple[Callable, Any]:
     from .._setup import CACHE_HITS, MAX_CACHED_OBJECTS
 
     CACHE_HITS.latest = None
-    compiled = _runner(exported).lower(*leaves).compile()
+    compiled = _runner(exported, options).lower(*leaves).compile()
     hit, CACHE_HITS.latest = CACHE_HITS.latest, None
     try:
         payload, in_tree, out_tree = _serialize(compiled, hit)
@@ -235,14 +236,14 @@ def _load(path: Path) -> tuple[Callable, Any] | None | bool:
     if data == _UNKEPT:
         return None
     try:
-        exported, out_tree, kept = pickle.loads(zlib.decompress(data))
+        exported, out_tree, kept, options = pickle.loads(zlib.decompress(data))
         run = None
         if kept is not None:
             try:
                 run = _executable(kept)
             except Exception as exc:  # the program is still good: lower it, as without an executable
                 logger.debug("drivecal: kept executable of %s not loadable (%s)", path, exc)
-        entry = (run if run is not None else _runner(exported)), out_tree
+        entry = (run if run is not None else _runner(exported, options)), out_tree
     except Exception as exc:  # a stale or damaged entry: trace again and overwrite it
         logger.debug("drivecal: ignoring cache entry %s (%s)", path, exc)
         return False
@@ -254,16 +255,19 @@ def _load(path: Path) -> tuple[Callable, Any] | None | bool:
 
 
 def _export(fn: Callable, name: str, leaves: list, treedef: Any, static: dict[str, Any],
-            path: Path) -> tuple[Callable, Any] | None:
+            path: Path, options: dict | None = None) -> tuple[Callable, Any] | None:
     """Trace and lower ``fn`` for these arguments and keep the program at ``path``; None: use the plain call."""
     import dataclasses
 
     from jax import export
 
     out_tree = []
+    # JAX refuses a nested jit with compiler options: trace the function the jit wraps (the options go to
+    # the outer jit, _runner's).
+    body = getattr(fn, "__wrapped__", fn) if options else fn
 
     def flat(*flat_args):
-        out = fn(*jax.tree_util.tree_unflatten(treedef, flat_args), **static)
+        out = body(*jax.tree_util.tree_unflatten(treedef, flat_args), **static)
         out_leaves, tree = jax.tree_util.tree_flatten(out)
         out_tree.append(tree)
         return out_leaves
@@ -276,8 +280,8 @@ def _export(fn: Callable, name: str, leaves: list, treedef: Any, static: dict[st
         # Module's tree does not): anything else is not kept.
         if pickle.loads(pickle.dumps(out_tree[0])) != out_tree[0]:
             raise TypeError(f"the output structure {out_tree[0]} does not survive pickling")
-        run, kept = _compiled(exported, leaves)
-        data = zlib.compress(pickle.dumps((exported, out_tree[0], kept)), 1)
+        run, kept = _compiled(exported, leaves, options)
+        data = zlib.compress(pickle.dumps((exported, out_tree[0], kept, options)), 1)
     except Exception as exc:
         logger.debug("drivecal: %s cannot be exported (%s); tracing it every run", name, exc)
         try:
@@ -308,7 +312,7 @@ def _strongly_typed(leaf: Any) -> Any:
     return leaf
 
 
-def call(fn: Callable, name: str, *args: Any, **static: Any) -> Any:
+def call(fn: Callable, name: str, *args: Any, compiler_options: dict | None = None, **static: Any) -> Any:
     """``fn(*args, **static)``, traced once per machine rather than once per process.
 
     Args:
@@ -316,6 +320,9 @@ def call(fn: Callable, name: str, *args: Any, **static: Any) -> Any:
             that returns arrays in tuples, lists or dicts (not in custom pytree nodes).
         name: names ``fn`` in the cache key (unique per function).
         args: the traced arguments.
+        compiler_options: XLA options ``fn`` is jitted with (``jax.jit(..., compiler_options=...)``): the
+            exported program does not carry them, so the kept one is compiled with them again (the function
+            the jit wraps, ``fn.__wrapped__``, is what is traced).
         static: arguments fixed at trace time; their ``repr`` is part of the key.
     """
     if jax.config.jax_disable_jit:
@@ -329,7 +336,9 @@ def call(fn: Callable, name: str, *args: Any, **static: Any) -> Any:
     if folder is None:
         return fn(*args, **static)
     try:
-        key = _key(name, leaves, treedef, static)
+        key = _key(name, leaves, treedef,
+                   {**static, " compiler_options": tuple(sorted(compiler_options.items()))} if compiler_options
+                   else static)
     except Exception as exc:  # e.g. a leaf JAX cannot type: not a traced call at all
         logger.debug("drivecal: no cache key for %s (%s)", name, exc)
         return fn(*args, **static)
@@ -337,7 +346,7 @@ def call(fn: Callable, name: str, *args: Any, **static: Any) -> Any:
         path = folder / f"{name}-{key[:32]}.pkl"
         entry = _load(path)
         if entry is False:
-            entry = _export(fn, name, leaves, treedef, static, path)
+            entry = _export(fn, name, leaves, treedef, static, path, compiler_options)
         _LOADED[key] = entry
     entry = _LOADED[key]
     if entry is None:
