@@ -52,6 +52,20 @@ def test_sensitivity_jacobian_shape_and_zero_columns(truth):
     assert np.all(jac[:, 1] == 0.0) and np.all(jac[:, 3] == 0.0)
 
 
+def test_the_score_tests_kernel_has_the_plain_jacobian_s_numbers(truth):
+    """``probing=True`` compiles the same Jacobian with other XLA options (PROBE_COMPILER_OPTIONS): the same
+    columns up to float64 rounding (a few ulps of the column's scale, accumulated over the rollout's steps)."""
+    from drivecal.model import model_experiment
+
+    names = ("R", "Ld", "Lq", "lambda_m", "delay", "offset_d")
+    experiment = model_experiment(dc.Experiment.from_plan(dc.locked_q_step_plan()), truth, names)
+    plain = np.asarray(dc.sensitivity_jacobian(truth, experiment, names))
+    probed = np.asarray(dc.sensitivity_jacobian(truth, experiment, names, probing=True))
+    scale = np.abs(plain).max(axis=0)
+    assert np.all(scale[[0, 2, 4, 5]] > 0.0)
+    assert np.all(np.abs(probed - plain) <= 1e3 * np.finfo(float).eps * scale)
+
+
 def test_identifiability_report_is_jaxterity_s(truth):
     """identify.py repeats jaxterity's identifiability_from_jacobian (importing it loads MuJoCo): same report."""
     import contextlib

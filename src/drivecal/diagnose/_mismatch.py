@@ -171,7 +171,7 @@ def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment
         probe = _one_substep(model_experiment(experiment, motor, all_names))
         # The currents' rows only (a measured speed as an output adds rows of its own): the tests read current
         # residuals.
-        jac = np.asarray(sensitivity_jacobian(motor, probe, all_names))[: 2 * experiment.num_samples]
+        jac = np.asarray(sensitivity_jacobian(motor, probe, all_names, probing=True))[: 2 * experiment.num_samples]
         fitted = jac[:, : len(fit_names)] if fitted is None else fitted
         found.update({n: jac[:, i] for i, n in enumerate(all_names)})
     columns = {e: np.stack([found[n] for n in _ALL_EFFECTS[e][1]], axis=1) for e in effects}

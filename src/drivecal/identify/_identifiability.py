@@ -18,7 +18,6 @@ nominal motor (forward mode: four parameters, thousands of outputs):
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from typing import NamedTuple
 
@@ -50,25 +49,28 @@ CORR_MAX = 0.99
 WEAK_RELATIVE_CI = 0.5
 
 
-def sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...] = ESTIMATED) -> jnp.ndarray:
+def sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...] = ESTIMATED, *,
+                         probing: bool = False) -> jnp.ndarray:
     """``d(i_d, i_q at every sample)/d(theta)``, shape (2M, len(names)), A per unit of theta.
 
     Rows alternate i_d, i_q sample by sample (the flattening of (M, 2)). With the measured speed
     as an output (``Experiment.speed_outputs``) the weighted speed's rows follow (K more rows, in
-    the currents' units: ``speed_weight`` A per rad/s).
+    the currents' units: ``speed_weight`` A per rad/s). ``probing``: the score tests' columns (bench
+    effects probed beside the fitted parameters), compiled with :data:`PROBE_COMPILER_OPTIONS`.
     """
-    return jacobian_and_outputs(motor, experiment, names)[0]
+    return jacobian_and_outputs(motor, experiment, names, probing=probing)[0]
 
 
-def jacobian_and_outputs(motor: MotorParams, experiment: Experiment,
-                         names: tuple[str, ...] = ESTIMATED) -> tuple[jnp.ndarray, jnp.ndarray]:
+def jacobian_and_outputs(motor: MotorParams, experiment: Experiment, names: tuple[str, ...] = ESTIMATED, *,
+                         probing: bool = False) -> tuple[jnp.ndarray, jnp.ndarray]:
     """:func:`sensitivity_jacobian` and the predicted outputs it is the derivative of (2M or 2M + K rows), in one pass."""
+    if probing:
+        return cached_call(_probe_jacobian, "probe_jacobian", motor, experiment, names=tuple(names),
+                           compiler_options=PROBE_COMPILER_OPTIONS)
     return cached_call(_sensitivity_jacobian, "sensitivity_jacobian", motor, experiment, names=tuple(names))
 
 
-@functools.partial(jax.jit, static_argnames=("names",))
-def _sensitivity_jacobian(motor: MotorParams, experiment: Experiment,
-                          names: tuple[str, ...]) -> tuple[jnp.ndarray, jnp.ndarray]:
+def _jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...]) -> tuple[jnp.ndarray, jnp.ndarray]:
     theta = motor.vector(names)
 
     def currents(th):
@@ -84,6 +86,18 @@ def _sensitivity_jacobian(motor: MotorParams, experiment: Experiment,
         return out, out
 
     return jax.jacfwd(with_value, has_aux=True)(theta)
+
+
+#: XLA:CPU options of the score tests' Jacobians (``probing=True``): the fitted parameters' columns and the
+#: bench effects' (the delay and the dead time switched on in the rollout). With XLA's default fusion emitters
+#: the default plan's kernel took 11.0 s to compile (19 s of CPU) into 360 object files, 12 MB, that a later
+#: process took 1.4 s to load; with the legacy emitters 7.4 s (12 s of CPU), 69 object files. Only this
+#: kernel: the Jaxonomy engine's simulations ran several times slower with the legacy emitters
+#: (docs/performance.md), and the fit's and the designs' kernels keep their numbers to the last bit.
+PROBE_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+
+_sensitivity_jacobian = jax.jit(_jacobian, static_argnames=("names",))
+_probe_jacobian = jax.jit(_jacobian, static_argnames=("names",), compiler_options=PROBE_COMPILER_OPTIONS)
 
 
 @dataclasses.dataclass(frozen=True)
