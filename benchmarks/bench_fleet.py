@@ -1,9 +1,11 @@
 """Fleet benchmark: `drivecal batch` end to end on synthetic production runs.
 
-For 10, 100, 1 000 and 10 000 motors of the default plan (one Parquet bench
-file each, 2 % manufacturing spread, 20 mA noise, measured speed), runs
-`drivecal batch DIR --out ... --json` as a fresh process in three ways:
+For 10, 100, 1 000 and 10 000 motors of the default plan (one bench file each,
+Parquet or CSV: ``--formats``; 2 % manufacturing spread, 20 mA noise, measured
+speed), runs `drivecal batch DIR --out ... --json` as a fresh process in four
+ways (``--placements``):
 
+- default options: no placement flag, as a user runs it (the batch picks its own);
 - `--workers 1`: everything in that process;
 - `--workers 2`: two helpers forked from that process, each pinned to one of this
   machine's 2 cores (that process hands out the chunks and saves their rows);
@@ -29,7 +31,7 @@ batch after a line's first one (the cold start is measured separately).
 Prints a table and writes benchmarks/results/bench_fleet.json.
 
     .venv/bin/python benchmarks/bench_fleet.py [--counts 10 100 1000 10000] [--chunk 256] [--repeats 3]
-        [--page-cache warm|cold|both]
+        [--page-cache warm|cold|both] [--formats parquet csv] [--placements default 1 2 dask] [--skip-cache-runs]
 """
 
 from __future__ import annotations
@@ -48,12 +50,12 @@ RESULTS = Path(__file__).parent / "results" / "bench_fleet.json"
 DRIVECAL = Path(sys.executable).with_name("drivecal")
 
 
-def _generate(root: Path, count: int) -> Path:
+def _generate(root: Path, count: int, fmt: str = "parquet") -> Path:
     from drivecal import fleet
 
-    directory = root / f"fleet_{count}"
+    directory = root / (f"fleet_{count}" if fmt == "parquet" else f"fleet_{count}_{fmt}")
     if not directory.exists():
-        fleet.synthetic_fleet(directory, count, seed=count)
+        fleet.synthetic_fleet(directory, count, seed=count, suffix=f".{fmt}")
     return directory
 
 
@@ -89,7 +91,10 @@ def _set_page_cache(directory: Path, state: str) -> None:
 
 
 def _where(mode: str) -> list[str]:
-    """The CLI options that place the chunks: ``"1"``/``"2"`` local processes, else a scheduler address."""
+    """The CLI options that place the chunks: none (``""``: the defaults), ``"1"``/``"2"`` local processes, else
+    a scheduler address."""
+    if not mode:
+        return []
     return ["--workers", mode] if mode.isdigit() else ["--scheduler", mode]
 
 
@@ -139,6 +144,12 @@ def main() -> None:
                         help="bench files read into the page cache before each timed run (warm), dropped from it "
                              "(cold: Linux, root), or both in turn")
     parser.add_argument("--workdir", type=Path, default=None, help="keep generated fleets here (default: a temp dir)")
+    parser.add_argument("--formats", nargs="+", choices=("parquet", "csv"), default=["parquet", "csv"],
+                        help="bench-file formats of the fleets")
+    parser.add_argument("--placements", nargs="+", choices=("default", "1", "2", "dask"),
+                        default=["default", "1", "2", "dask"],
+                        help="default options, --workers 1, --workers 2, a 2-worker dask cluster")
+    parser.add_argument("--skip-cache-runs", action="store_true", help="skip the empty-cache runs of 100 motors")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
 
@@ -154,20 +165,21 @@ def main() -> None:
     rows = []
     directories = {}
     for count in args.counts:
-        t = time.perf_counter()
-        directories[count] = _generate(root, count), time.perf_counter() - t
-        if count <= args.warm_up_max:
-            # One untimed invocation first, so the timed ones find the compiled fit for this count's
-            # batch shape in the persistent cache, as every batch after the first one on a line does
-            # (chunks are of equal size: 10 000 motors use the shape of 1 000, 256). The cold start
-            # is measured below.
-            warm = root / f"results_{count}_warm.parquet"
-            subprocess.run(["rm", "-rf", str(warm), str(warm) + ".parts"], check=True)
-            _run_batch(directories[count][0], warm, "1", args.chunk)
+        for fmt in args.formats:
+            t = time.perf_counter()
+            directories[count, fmt] = _generate(root, count, fmt), time.perf_counter() - t
+            if count <= args.warm_up_max:
+                # One untimed invocation first, so the timed ones find the compiled fit for this count's
+                # batch shape in the persistent cache, as every batch after the first one on a line does
+                # (chunks are of equal size: 10 000 motors use the shape of 1 000, 256). The cold start
+                # is measured below.
+                warm = root / f"results_{count}_warm.parquet"
+                subprocess.run(["rm", "-rf", str(warm), str(warm) + ".parts"], check=True)
+                _run_batch(directories[count, fmt][0], warm, "1", args.chunk)
 
     def measure(label: str, mode: str) -> None:
-        for count in args.counts:
-            directory, generated = directories[count]
+        for count, fmt in directories:
+            directory, generated = directories[count, fmt]
             for cache_state in (("warm", "cold") if args.page_cache == "both" else (args.page_cache,)):
                 runs = []
                 for _ in range(args.repeats):
@@ -176,32 +188,34 @@ def main() -> None:
                     _set_page_cache(directory, cache_state)
                     runs.append(_peak_rss_of(directory, out, mode, args.chunk))
                 walls = [r["wall_s"] for r in runs]
-                row = {"count": count, "placement": label, "page_cache": cache_state,
+                row = {"count": count, "format": fmt, "placement": label, "page_cache": cache_state,
                        "wall_s": statistics.median(walls), "best_s": min(walls), "walls_s": walls,
                        "motors_per_s": count / statistics.median(walls), "best_motors_per_s": count / min(walls),
                        "peak_rss_mib": max(r["peak_rss_mib"] for r in runs), "generate_s": generated}
                 rows.append(row)
-                print(f"{count:>6} motors, {label:>15}, {cache_state} files: median {row['wall_s']:6.1f} s "
+                print(f"{count:>6} motors, {fmt:>7}, {label:>15}, {cache_state} files: median {row['wall_s']:6.1f} s "
                       f"({row['motors_per_s']:7.1f} motors/s), best {row['best_s']:6.1f} s "
                       f"({row['best_motors_per_s']:7.1f} motors/s), peak RSS {row['peak_rss_mib']:5.0f} MiB",
                       flush=True)
 
     # The local placements first, with no cluster up: an idle LocalCluster (scheduler, nannies,
     # workers) takes ~12 % of a core here, which would be charged to the local runs.
-    measure("1 process", "1")
-    measure("2 processes", "2")
-    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                           silence_logs=40)
-    try:
-        measure("dask, 2 workers", cluster.scheduler_address)
-    finally:
-        cluster.close()
+    for placement, label in (("default", "default options"), ("1", "1 process"), ("2", "2 processes")):
+        if placement in args.placements:
+            measure(label, "" if placement == "default" else placement)
+    if "dask" in args.placements:
+        cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=40)
+        try:
+            measure("dask, 2 workers", cluster.scheduler_address)
+        finally:
+            cluster.close()
 
     # The persistent compilation cache: the same batch twice, starting from an empty cache.
     cache_rows = []
-    directory = _generate(root, 100)
+    directory = None if args.skip_cache_runs else _generate(root, 100)
     with tempfile.TemporaryDirectory(prefix="drivecal-jax-cache-") as cache:
-        for label, env in (("cache off", {"DRIVECAL_JAX_CACHE": "0"}),
+        for label, env in () if args.skip_cache_runs else (("cache off", {"DRIVECAL_JAX_CACHE": "0"}),
                            ("first, empty cache", {"DRIVECAL_JAX_CACHE_DIR": cache}),
                            ("second, warm cache", {"DRIVECAL_JAX_CACHE_DIR": cache})):
             out = root / "results_cache.parquet"
@@ -213,10 +227,10 @@ def main() -> None:
     probe_after = _cpu_probe()
     print()
     print(f"CPU probe (sum(range(3e7)), best of 3): {probe_before:.2f} s before the runs, {probe_after:.2f} s after")
-    print(f"{'motors':>8} {'placement':>16} {'files':>6} {'median [s]':>11} {'motors/s':>10} {'best [s]':>9} "
+    print(f"{'motors':>8} {'format':>8} {'placement':>16} {'files':>6} {'median [s]':>11} {'motors/s':>10} {'best [s]':>9} "
           f"{'motors/s':>10} {'peak RSS [MiB]':>15}")
     for r in rows:
-        print(f"{r['count']:>8} {r['placement']:>16} {r['page_cache']:>6} {r['wall_s']:>11.1f} "
+        print(f"{r['count']:>8} {r['format']:>8} {r['placement']:>16} {r['page_cache']:>6} {r['wall_s']:>11.1f} "
               f"{r['motors_per_s']:>10.1f} {r['best_s']:>9.1f} {r['best_motors_per_s']:>10.1f} "
               f"{r['peak_rss_mib']:>15.0f}")
     print()
