@@ -322,10 +322,10 @@ def call(fn: Callable, name: str, *args: Any, compiler_options: dict | None = No
         args: the traced arguments.
         compiler_options: XLA options ``fn`` is jitted with (``jax.jit(..., compiler_options=...)``): the
             exported program does not carry them, so the kept one is compiled with them again.
+        static: arguments fixed at trace time; their ``repr`` is part of the key.
 
     Where ``fn`` is a jitted function, the function it wraps (``fn.__wrapped__``) is what is traced and kept:
-    one jit, not one inside another (a cold ``drivecal fit examples/bench.csv`` traced ~1 s less).
-        static: arguments fixed at trace time; their ``repr`` is part of the key.
+    one jit, not one inside another (a cold ``drivecal fit examples/bench.csv`` took ~1 s less).
     """
     if jax.config.jax_disable_jit:
         return fn(*args, **static)
