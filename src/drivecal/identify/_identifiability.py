@@ -92,8 +92,9 @@ def _jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...]
 #: bench effects' (the delay and the dead time switched on in the rollout). With XLA's default fusion emitters
 #: the default plan's kernel took 11.0 s to compile (19 s of CPU) into 360 object files; with the legacy
 #: emitters 7.4 s (12 s of CPU), 69 object files (a later process loads either in ~1.5 s: most of the
-#: executable is its HLO, some 50 000 named instructions, not their code). Only this kernel: the Jaxonomy engine's simulations ran several times slower with the legacy emitters
-#: (docs/performance.md), and the fit's and the designs' kernels keep their numbers to the last bit.
+#: executable is its HLO, some 50 000 named instructions, not their code). Only this kernel: the Jaxonomy
+#: engine's simulations ran several times slower with the legacy emitters (docs/performance.md), and the
+#: fit's and the designs' kernels keep their numbers to the last bit.
 PROBE_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
 _sensitivity_jacobian = jax.jit(_jacobian, static_argnames=("names",))
