@@ -21,16 +21,13 @@ import dataclasses
 import math
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from ..model import cached_call
 from .._stats import t_ppf
 from ..errors import DrivecalError
-from ..model import (Experiment, join_current_parts, model_experiment, predict_current_parts, predict_currents,
-                     simulate_states)
+from ..model import Experiment, model_experiment, simulate_states
 from ..physics import ADDITIVE_SCALE, ESTIMATED, MECHANICAL, MotorParams, dq_to_abc, search_scale
+from ._jacobian import jacobian_and_outputs, sensitivity_jacobian
 from ._magnetic_reasons import magnetic_reasons
 
 #: A parameter whose relative sensitivity is below this fraction of the
@@ -47,58 +44,6 @@ CORR_MAX = 0.99
 #: A positive parameter whose predicted 95 % CI half-width exceeds this
 #: fraction of its value is weak: the plan barely constrains it.
 WEAK_RELATIVE_CI = 0.5
-
-
-def sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...] = ESTIMATED, *,
-                         probing: bool = False) -> jnp.ndarray:
-    """``d(i_d, i_q at every sample)/d(theta)``, shape (2M, len(names)), A per unit of theta.
-
-    Rows alternate i_d, i_q sample by sample (the flattening of (M, 2)). With the measured speed
-    as an output (``Experiment.speed_outputs``) the weighted speed's rows follow (K more rows, in
-    the currents' units: ``speed_weight`` A per rad/s). ``probing``: the score tests' columns (bench
-    effects probed beside the fitted parameters), compiled with :data:`PROBE_COMPILER_OPTIONS`.
-    """
-    return jacobian_and_outputs(motor, experiment, names, probing=probing)[0]
-
-
-def jacobian_and_outputs(motor: MotorParams, experiment: Experiment, names: tuple[str, ...] = ESTIMATED, *,
-                         probing: bool = False) -> tuple[jnp.ndarray, jnp.ndarray]:
-    """:func:`sensitivity_jacobian` and the predicted outputs it is the derivative of (2M or 2M + K rows), in one pass."""
-    if probing:
-        return cached_call(_probe_jacobian, "probe_jacobian", motor, experiment, names=tuple(names),
-                           compiler_options=PROBE_COMPILER_OPTIONS)
-    return cached_call(_sensitivity_jacobian, "sensitivity_jacobian", motor, experiment, names=tuple(names))
-
-
-def _jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...]) -> tuple[jnp.ndarray, jnp.ndarray]:
-    theta = motor.vector(names)
-
-    def currents(th):
-        if not experiment.speed_outputs:
-            return predict_currents(motor.with_vector(names, th), experiment).reshape(-1)
-        # One rollout for both: the currents' parts laid end to end, then the weighted speed's.
-        parts = predict_current_parts(motor.with_vector(names, th), experiment)
-        speed = parts[len(parts) - len(experiment.speed_outputs):]
-        return jnp.concatenate([join_current_parts(experiment, parts).reshape(-1), *speed])
-
-    def with_value(th):
-        out = currents(th)
-        return out, out
-
-    return jax.jacfwd(with_value, has_aux=True)(theta)
-
-
-#: XLA:CPU options of the score tests' Jacobians (``probing=True``): the fitted parameters' columns and the
-#: bench effects' (the delay and the dead time switched on in the rollout). With XLA's default fusion emitters
-#: the default plan's kernel took 11.0 s to compile (19 s of CPU) into 360 object files; with the legacy
-#: emitters 7.4 s (12 s of CPU), 69 object files (a later process loads either in ~1.5 s: most of the
-#: executable is its HLO, some 50 000 named instructions, not their code). Only this kernel: the Jaxonomy
-#: engine's simulations ran several times slower with the legacy emitters (docs/performance.md), and the
-#: fit's and the designs' kernels keep their numbers to the last bit.
-PROBE_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
-
-_sensitivity_jacobian = jax.jit(_jacobian, static_argnames=("names",))
-_probe_jacobian = jax.jit(_jacobian, static_argnames=("names",), compiler_options=PROBE_COMPILER_OPTIONS)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,0 +1,66 @@
+"""The sensitivity Jacobian ``d(predicted currents)/d(theta)``, in one compiled pass with the currents.
+
+Forward mode (a few parameters, thousands of outputs), kept on disk by ``model.cached_call``. The score tests'
+Jacobian (``probing=True``: bench effects probed beside the fitted parameters) is the same function compiled
+with other XLA options (:data:`PROBE_COMPILER_OPTIONS`).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from ..model import Experiment, cached_call, join_current_parts, predict_current_parts, predict_currents
+from ..physics import ESTIMATED, MotorParams
+
+
+def sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...] = ESTIMATED, *,
+                         probing: bool = False) -> jnp.ndarray:
+    """``d(i_d, i_q at every sample)/d(theta)``, shape (2M, len(names)), A per unit of theta.
+
+    Rows alternate i_d, i_q sample by sample (the flattening of (M, 2)). With the measured speed
+    as an output (``Experiment.speed_outputs``) the weighted speed's rows follow (K more rows, in
+    the currents' units: ``speed_weight`` A per rad/s). ``probing``: the score tests' columns (bench
+    effects probed beside the fitted parameters), compiled with :data:`PROBE_COMPILER_OPTIONS`.
+    """
+    return jacobian_and_outputs(motor, experiment, names, probing=probing)[0]
+
+
+def jacobian_and_outputs(motor: MotorParams, experiment: Experiment, names: tuple[str, ...] = ESTIMATED, *,
+                         probing: bool = False) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """:func:`sensitivity_jacobian` and the predicted outputs it is the derivative of (2M or 2M + K rows), in one pass."""
+    if probing:
+        return cached_call(_probe_jacobian, "probe_jacobian", motor, experiment, names=tuple(names),
+                           compiler_options=PROBE_COMPILER_OPTIONS)
+    return cached_call(_sensitivity_jacobian, "sensitivity_jacobian", motor, experiment, names=tuple(names))
+
+
+def _jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...]) -> tuple[jnp.ndarray, jnp.ndarray]:
+    theta = motor.vector(names)
+
+    def currents(th):
+        if not experiment.speed_outputs:
+            return predict_currents(motor.with_vector(names, th), experiment).reshape(-1)
+        # One rollout for both: the currents' parts laid end to end, then the weighted speed's.
+        parts = predict_current_parts(motor.with_vector(names, th), experiment)
+        speed = parts[len(parts) - len(experiment.speed_outputs):]
+        return jnp.concatenate([join_current_parts(experiment, parts).reshape(-1), *speed])
+
+    def with_value(th):
+        out = currents(th)
+        return out, out
+
+    return jax.jacfwd(with_value, has_aux=True)(theta)
+
+
+#: XLA:CPU options of the score tests' Jacobians (``probing=True``): the fitted parameters' columns and the
+#: bench effects' (the delay and the dead time switched on in the rollout). With XLA's default fusion emitters
+#: the default plan's kernel took 11.0 s to compile (19 s of CPU) into 360 object files; with the legacy
+#: emitters 7.4 s (12 s of CPU), 69 object files (a later process loads either in ~1.5 s: most of the
+#: executable is its HLO, some 50 000 named instructions, not their code). Only this kernel: the Jaxonomy
+#: engine's simulations ran several times slower with the legacy emitters (docs/performance.md), and the
+#: fit's and the designs' kernels keep their numbers to the last bit.
+PROBE_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+
+_sensitivity_jacobian = jax.jit(_jacobian, static_argnames=("names",))
+_probe_jacobian = jax.jit(_jacobian, static_argnames=("names",), compiler_options=PROBE_COMPILER_OPTIONS)
