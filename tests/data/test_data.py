@@ -333,6 +333,43 @@ def test_parquet_text_columns_read_as_labels(tmp_path):
     assert read_table(path)["segment"].tolist() == [None if pd.isna(x) else x for x in frame["segment"]]
 
 
+@pytest.mark.parametrize("dialect", [(",", "."), (";", ","), ("\t", ".")], ids=["comma", "semicolon-comma", "tab"])
+def test_csv_columns_are_pandas_to_the_bit(tmp_path, dialect):
+    """A CSV bench file reads as pandas reads it (Arrow's reader where it agrees): names, dtypes, every bit of
+    every number, text as labels (None where empty); a name given twice, a timestamp column and a
+    column with no value are read by pandas itself."""
+    from drivecal.data import read_table
+
+    sep, decimal = dialect
+    rng = np.random.default_rng(7)
+    frame = small_frame(40).assign(serial="SN1", i_d=lambda f: f["i_d"] + rng.normal(0.0, 0.02, len(f)))
+    frame.loc[5, "segment"] = None
+    path = tmp_path / "b.csv"
+    frame.to_csv(path, index=False, sep=sep, decimal=decimal, float_format="%.17g")
+    expected = pd.read_csv(path, sep=sep, decimal=decimal)
+    columns = read_table(path)
+    assert list(columns) == list(expected.columns)
+    for name in expected.columns:
+        want = expected[name].to_numpy()
+        if want.dtype.kind == "f":
+            assert columns[name].dtype == np.float64
+            np.testing.assert_array_equal(columns[name].view(np.int64), want.view(np.int64))
+        elif want.dtype.kind in "iub":
+            assert columns[name].dtype == want.dtype
+            np.testing.assert_array_equal(columns[name], want)
+        else:
+            assert columns[name].tolist() == [None if pd.isna(x) else x for x in want]
+    odd = {"twice": "t,i_d,i_d\n0,1.5,2.5\n", "timestamp": "t,i_d\n2026-01-01 00:00:00.5,1\n2026-01-01 00:00:01,2\n",
+           "empty": "t,i_d,w_m\n0,1,\n1,2,\n"}
+    for text in odd.values():
+        path.write_text(text)
+        want = dc.data.columns_of(pd.read_csv(path))
+        got = read_table(path)
+        assert list(got) == list(want)
+        for name in want:
+            np.testing.assert_array_equal(got[name], want[name])
+
+
 def test_tables_with_temperature_and_angle_checked_together_as_one_by_one():
     """Temperature and rotor-angle columns take the vectorised path too: the same benches, the same sentences."""
     from drivecal.data import benches_from_frames
