@@ -159,11 +159,9 @@ def benches_from_frames(
 
 def _segments(segment: np.ndarray, source: str) -> tuple[list[str], list[int]]:
     """The segment names (stripped) in order of appearance and their numbers of rows; each a block of rows."""
-    import pandas as pd
-
     # Segment names by code (a handful of distinct names over thousands of rows: strip those, not every row).
     try:
-        codes, labels = pd.factorize(segment, use_na_sentinel=True)
+        codes, labels = _factorize(segment)
     except TypeError:  # unhashable names: lists or arrays where text belongs
         row = next(k for k, x in enumerate(segment) if not isinstance(x, Hashable))
         raise DataError(f"{source}: column 'segment' holds lists ({str(segment[row])[:40]} in data row {row + 1}), "
@@ -190,6 +188,30 @@ def _segments(segment: np.ndarray, source: str) -> tuple[list[str], list[int]]:
             "or give the blocks different names."
         )
     return order, (stops - starts).tolist()
+
+
+def _factorize(values: np.ndarray) -> tuple[np.ndarray, list]:
+    """``pandas.factorize(values)`` for a column of blocks: codes (-1 where missing: None or NaN) and the
+    distinct values in order of appearance; TypeError for an unhashable value.
+
+    The values are compared per row, hashed per block of equal rows (a bench file has a handful): numpy and
+    no pandas, whose import a single fit would pay only for this (~0.3 s)."""
+    values = np.asarray(values)
+    try:
+        differs = np.asarray(values[1:] != values[:-1], dtype=bool)
+    except ValueError:  # arrays among the values (compared elementwise): unhashable
+        raise TypeError("unhashable values") from None
+    if differs.shape != (max(values.size - 1, 0),):
+        raise TypeError("values that do not compare one to one")
+    starts = np.concatenate([[0], np.flatnonzero(differs) + 1]) if values.size else np.zeros(0, int)
+    index: dict = {}
+    block_codes = np.empty(starts.size, dtype=np.intp)
+    for k, i in enumerate(starts.tolist()):
+        x = values[i]
+        missing = x is None or (isinstance(x, (float, np.floating)) and x != x)
+        block_codes[k] = -1 if missing else index.setdefault(x, len(index))
+    codes = np.repeat(block_codes, np.diff(np.concatenate([starts, [values.size]])))
+    return codes, list(index)
 
 
 def _checks_vectorise(columns: Columns) -> bool:
