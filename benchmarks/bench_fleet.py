@@ -14,8 +14,9 @@ ways (``--placements``):
   a core here), and keeps for every count (as a production cluster runs
   between batches: its workers compile on their first chunk and keep the fit).
 
-It records wall time, motors/s and the peak resident memory of the largest
-process (chunking must keep it flat as the count grows); each is run
+It records wall time, motors/s, the marginal motors/s (from the next smaller
+count run the same way: what each further motor costs, start-up cancelled out)
+and the peak resident memory of the largest process (chunking must keep it flat as the count grows); each is run
 ``--repeats`` times and the median and best are reported, since this
 machine's speed drifts by tens of percent from one minute to the next (a
 pure-Python CPU probe, timed before and after, records how fast it ran). Then
@@ -88,6 +89,22 @@ def _set_page_cache(directory: Path, state: str) -> None:
     except OSError as exc:
         sys.exit(f"--page-cache cold: cannot drop the page cache ({exc}); it needs Linux and root. Use "
                  "--page-cache warm.")
+
+
+def _add_marginal(rows: list[dict]) -> None:
+    """Add to each row the marginal throughput from the next smaller count run the same way (format, placement,
+    page cache): ``(count - smaller) / (wall - its wall)``, motors/s once the batch runs, start-up (imports,
+    loading the compiled fit, helpers) and the last chunk's tail cancelled out. Issue 21's targets are of
+    this kind."""
+    def way(r: dict) -> tuple:
+        return r["format"], r["placement"], r["page_cache"]
+
+    for key in dict.fromkeys(map(way, rows)):
+        same = sorted((r for r in rows if way(r) == key), key=lambda r: r["count"])
+        for smaller, r in zip(same, same[1:]):
+            extra = r["wall_s"] - smaller["wall_s"]
+            r["marginal_from"] = smaller["count"]
+            r["marginal_motors_per_s"] = (r["count"] - smaller["count"]) / extra if extra > 0 else float("inf")
 
 
 def _where(mode: str) -> list[str]:
@@ -225,14 +242,17 @@ def main() -> None:
             print(f"100 motors, {label:>20}: {r['wall_s']:6.1f} s", flush=True)
 
     probe_after = _cpu_probe()
+    _add_marginal(rows)
     print()
     print(f"CPU probe (sum(range(3e7)), best of 3): {probe_before:.2f} s before the runs, {probe_after:.2f} s after")
     print(f"{'motors':>8} {'format':>8} {'placement':>16} {'files':>6} {'median [s]':>11} {'motors/s':>10} {'best [s]':>9} "
-          f"{'motors/s':>10} {'peak RSS [MiB]':>15}")
+          f"{'motors/s':>10} {'peak RSS [MiB]':>15} {'marginal motors/s':>22}")
     for r in rows:
+        marginal = (f"{r['marginal_motors_per_s']:8.1f} (from {r['marginal_from']})"
+                    if "marginal_from" in r else "")
         print(f"{r['count']:>8} {r['format']:>8} {r['placement']:>16} {r['page_cache']:>6} {r['wall_s']:>11.1f} "
               f"{r['motors_per_s']:>10.1f} {r['best_s']:>9.1f} {r['best_motors_per_s']:>10.1f} "
-              f"{r['peak_rss_mib']:>15.0f}")
+              f"{r['peak_rss_mib']:>15.0f} {marginal:>22}")
     print()
     for r in cache_rows:
         print(f"  100 motors, {r['run']:>20}: {r['wall_s']:.1f} s")
@@ -247,7 +267,8 @@ def main() -> None:
                  "cluster's start: it is up for the dask runs only, all counts); counts up to "
                  f"{args.warm_up_max} ran once untimed first, "
                  "so the compiled fit came from the persistent cache (compile_cache: the same batch from an "
-                 "empty cache); wall_s is the median of the repeats, best_s the fastest; page_cache: the bench "
+                 "empty cache); wall_s is the median of the repeats, best_s the fastest; marginal_motors_per_s: "
+                 "(count - marginal_from) / (wall_s - that count's wall_s), run the same way; page_cache: the bench "
                  "files were read into the page cache before each run (warm) or dropped from it (cold)"),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
