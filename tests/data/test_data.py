@@ -359,6 +359,8 @@ def test_csv_columns_are_pandas_to_the_bit(tmp_path, dialect):
             np.testing.assert_array_equal(columns[name], want)
         else:
             assert columns[name].tolist() == [None if pd.isna(x) else x for x in want]
+    path.write_text("segment,serial,t\n01,000123,0\n01,000123,1\n")  # text as written, not numbers
+    assert read_table(path)["serial"].tolist() == ["000123"] * 2 and read_table(path)["segment"][0] == "01"
     odd = {"twice": "t,i_d,i_d\n0,1.5,2.5\n", "timestamp": "t,i_d\n2026-01-01 00:00:00.5,1\n2026-01-01 00:00:01,2\n",
            "empty": "t,i_d,w_m\n0,1,\n1,2,\n"}
     for text in odd.values():

@@ -100,8 +100,9 @@ def read_table(path: Path, content: bytes | None = None, *, delimiter: str | Non
                         f"complete and a {suffix[1:]} file (write it again).") from None
 
 
-#: Arrow column types a CSV file is read as pandas would read it (text as labels, numbers as float64 or
-#: int64, True/False as bool); a file with any other (a timestamp, a column with no value) goes to pandas.
+#: Arrow column types of a CSV file read as pandas would read it (numbers as float64 or int64, True/False as
+#: bool; the text columns of :data:`TEXT_COLUMNS` are labels); a file with a column of any other type (text
+#: elsewhere, a timestamp, a column with no value) goes to pandas.
 _ARROW_CSV_KINDS = ("int64", "double", "bool")
 
 
@@ -112,7 +113,8 @@ def _read_csv(content: bytes, delimiter: str, decimal: str) -> Columns:
     pandas' to the bit (both round each decimal correctly). pandas decides where they could differ: a
     name given twice (pandas renames the second), a column read as a timestamp or with no value at all,
     and whatever Arrow cannot parse (so the error a user reads is pandas', as before). Empty text is
-    None, as in a Parquet file.
+    None, as in a Parquet file. The text columns are the file's text, as written: a serial ``000123``
+    stays ``000123`` (pandas read it as the number 123).
     """
     import pyarrow as pa
     import pyarrow.csv as pa_csv
