@@ -6,6 +6,8 @@ different blocks in Jaxonomy): a source that outputs the plan's sample k on
 ``jaxonomy.library.drives.PMSM``. Jaxonomy's adaptive solver integrates it; the
 currents are read at exactly ``t_k = k / sample_rate``. drivecal's own RK4
 rollout (``drivecal.model``) is never used here, so comparing the two is a real test.
+A run's bench is kept on disk beside the compiled kernels and read back by a later
+run with the same inputs (below: :func:`_bench_key`).
 """
 
 from __future__ import annotations
@@ -265,6 +267,10 @@ def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
         exact = engine_bench(plan, motor, record_speed=True, delay_samples=delay_samples)
         return encoder_readings(exact, encoder_counts, float(motor.pole_pairs))
     plan.check_feasible()
+    key = _bench_key(plan, motor, record_speed, delay_samples)
+    kept = _kept_bench(key)
+    if kept is not None:
+        return kept
     _quiet_jaxonomy()
     segments = []
     for seg, t, states in _plan_states(plan, motor, delay_samples):
@@ -292,7 +298,67 @@ def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
                 inverter_off=seg.inverter == "off",
             )
         )
-    return BenchData(segments=tuple(segments), sample_rate=plan.sample_rate, source="synthetic bench")
+    bench = BenchData(segments=tuple(segments), sample_rate=plan.sample_rate, source="synthetic bench")
+    _keep_bench(key, bench)
+    return bench
+
+
+# --------------------------------------------------------------------------- engine runs kept on disk
+# A run of the engine is a pure function of its inputs: the same plan and motor give the same bench to the
+# last bit. It is kept beside the compiled kernels (``model.keep_result``), keyed by the inputs, drivecal's
+# source and the versions of JAX and Jaxonomy, so a later process with the same inputs (a second `drivecal
+# demo`, `simulate` of the same plan) reads it rather than importing Jaxonomy and running the engine
+# (~2.5 s of a warm demo). Off with the compilation cache (DRIVECAL_JAX_CACHE=0, as the test suite runs).
+
+#: The kind of kept result, and its format's version (bump when a kept bench changes meaning).
+_KEPT_KIND = "engine-benches-v1"
+
+
+def _bench_key(plan: Plan, motor: MotorParams, record_speed: bool, delay_samples: float) -> str | None:
+    """The key of this engine run's bench; None where nothing is kept (caching off, inputs that do not pickle)."""
+    from ..model import lowered_cache_directory
+
+    return None if lowered_cache_directory() is None else _key_of(plan, motor, record_speed, delay_samples)
+
+
+def _key_of(plan: Plan, motor: MotorParams, record_speed: bool, delay_samples: float) -> str | None:
+    """The inputs, pickled (equal inputs pickle alike), with what the engine's run depends on besides, hashed."""
+    import pickle
+
+    from ..model import result_key
+
+    try:
+        material = pickle.dumps((plan, motor, bool(record_speed), float(delay_samples)), protocol=5)
+    except Exception:  # noqa: BLE001  (a plan with a callable in it, say: run the engine)
+        return None
+    return result_key(_KEPT_KIND, material, libraries=("jaxonomy",))
+
+
+def _kept_bench(key: str | None) -> BenchData | None:
+    """The bench kept under ``key`` by an earlier run; None where there is none or it does not load."""
+    import pickle
+    import zlib
+
+    from ..model import kept_result
+
+    data = None if key is None else kept_result(_KEPT_KIND, key)
+    if data is None:
+        return None
+    try:
+        bench = pickle.loads(zlib.decompress(data))
+    except Exception:  # noqa: BLE001  (damaged: run the engine and keep it again)
+        return None
+    return bench if isinstance(bench, BenchData) else None
+
+
+def _keep_bench(key: str | None, bench: BenchData) -> None:
+    import pickle
+    import zlib
+
+    from ..model import keep_result
+
+    if key is not None:
+        keep_result(_KEPT_KIND, key, zlib.compress(pickle.dumps(bench, protocol=5), 1))
 
 
 def _plan_states(plan: Plan, motor: MotorParams, delay_samples: float):

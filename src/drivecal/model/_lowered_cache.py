@@ -126,16 +126,62 @@ def _full_key(name: str, leaves: list, treedef: Any, static: dict[str, Any]) -> 
     return h.hexdigest()
 
 
-def _prune(folder: Path) -> None:
-    """Drop the least recently used entries beyond ``_MAX_ENTRIES``."""
+def _prune(folder: Path, keep: int | None = None) -> None:
+    """Drop the least recently used entries beyond ``keep`` (default ``_MAX_ENTRIES``)."""
+    keep = _MAX_ENTRIES if keep is None else keep
     entries = []
     for p in folder.glob("*.pkl"):
         try:
             entries.append((p.stat().st_mtime, p))
         except OSError:
             pass
-    for _, p in sorted(entries)[: max(len(entries) - _MAX_ENTRIES, 0)]:
+    for _, p in sorted(entries)[: max(len(entries) - keep, 0)]:
         p.unlink(missing_ok=True)
+
+
+def result_key(kind: str, material: bytes, libraries: tuple[str, ...] = ()) -> str:
+    """The key of a computed result kept on disk (:func:`kept_result`): what it depends on, hashed.
+
+    ``material``: the computation's inputs, serialised (equal bytes for equal inputs). The key adds what every
+    trace depends on (drivecal's source, the traced libraries' versions, the JAX settings, ``XLA_FLAGS``) and
+    the versions of ``libraries`` (those the computation runs besides, e.g. ``("jaxonomy",)``)."""
+    h = hashlib.sha256(f"{_fingerprint()}\n{_settings()}\n{os.environ.get('XLA_FLAGS', '')}\n{kind}\n".encode())
+    for dist in libraries:
+        try:
+            h.update(f"{dist}=={metadata.version(dist)}\n".encode())
+        except metadata.PackageNotFoundError:
+            h.update(f"{dist}==-\n".encode())
+    h.update(material)
+    return h.hexdigest()
+
+
+def kept_result(kind: str, key: str) -> bytes | None:
+    """The bytes :func:`keep_result` kept under ``key`` (marked recently used), or None: absent, unreadable, or
+    caching off. They live in the compilation cache's folder (one per host kind) beside the traced programs."""
+    folder = directory()
+    if folder is None:
+        return None
+    path = folder.parent / f"drivecal-{kind}" / f"{key}.pkl"
+    try:
+        data = path.read_bytes()
+        os.utime(path)  # recently used: kept by _prune
+    except OSError:
+        return None
+    return data
+
+
+def keep_result(kind: str, key: str, data: bytes, entries: int = 64) -> None:
+    """Keep ``data`` under ``key`` for :func:`kept_result` (written whole or not at all; the least recently used
+    beyond ``entries`` of this ``kind`` go). Does nothing where caching is off; a failure to write is logged."""
+    folder = directory()
+    if folder is None:
+        return
+    path = folder.parent / f"drivecal-{kind}" / f"{key}.pkl"
+    try:
+        _write(path, data)
+        _prune(path.parent, entries)
+    except OSError as exc:
+        logger.debug("drivecal: cannot keep %s (%s)", path, exc)
 
 
 def _write(path: Path, data: bytes) -> None:
