@@ -20,6 +20,7 @@ result JSON, figures + HTML, and compile/trace seconds by kernel) for both trees
 Prints tables and writes benchmarks/results/bench_workflow.json.
 
     .venv/bin/python benchmarks/bench_workflow.py [--runs 3] [--cold-runs 2] [--baseline-commit 76b0222]
+        [--only TEXT] [--cache cold|warm|both] [--skip-phases] [--results FILE]
 """
 
 from __future__ import annotations
@@ -141,6 +142,8 @@ def main() -> None:
     parser.add_argument("--only", default=None, help="time only the cases whose label contains this text")
     parser.add_argument("--results", type=Path, default=RESULTS, help="the JSON file to write")
     parser.add_argument("--skip-phases", action="store_true", help="skip the cold demo's phase breakdown")
+    parser.add_argument("--cache", choices=("cold", "warm", "both"), default="both",
+                        help="time only the cold cases, only the warm ones, or both")
     args = parser.parse_args()
 
     base_dir = args.baseline_dir or Path(f"/tmp/drivecal-wf-{args.baseline_commit}")
@@ -156,7 +159,7 @@ def main() -> None:
         tutorial = time_tutorial(trees["now"], args.runs)
         t_tutorial = statistics.median(tutorial)
         for label, case, kind in CASES:
-            if args.only and args.only not in label:
+            if (args.only and args.only not in label) or args.cache not in ("both", kind):
                 continue
             samples, cpu = {}, {}
             try:
