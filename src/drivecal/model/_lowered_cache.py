@@ -18,6 +18,10 @@ version of drivecal), the bytes the cache holds are kept: jaxlib 0.9
 serialises an executable loaded from the cache without its code, and it fails
 when run.
 
+Other computed results that are pure functions of their inputs (the engine's
+benches) are kept in folders of their own beside the programs, under keys of the
+same kind (:func:`result_key`, :func:`keep_result`, :func:`kept_result`).
+
 The same program runs whether it was just traced or loaded, so the numbers do
 not depend on the state of the cache (and they are those of the plain
 ``jax.jit`` call). Off with ``DRIVECAL_JAX_CACHE=0`` (the plain call then
@@ -70,17 +74,23 @@ def directory() -> Path | None:
 @functools.lru_cache(maxsize=1)
 def _fingerprint() -> str:
     """What every trace depends on: drivecal's source (every module of every sub-package) and the traced libraries' versions."""
-    h = hashlib.sha256(f"drivecal traced v{_FORMAT}\n".encode())
-    for dist in _TRACED_LIBRARIES:
-        try:
-            version = metadata.version(dist)
-        except metadata.PackageNotFoundError:
-            version = "-"
-        h.update(f"{dist}=={version}\n".encode())
+    h = hashlib.sha256(f"drivecal traced v{_FORMAT}\n{_versions(_TRACED_LIBRARIES)}".encode())
     root = package_root()
     for path in source_files():
         h.update(path.relative_to(root).as_posix().encode() + b"\n" + path.read_bytes() + b"\n")
     return h.hexdigest()
+
+
+def _versions(dists: tuple[str, ...]) -> str:
+    """``"name==version\\n"`` per distribution (``-`` for one not installed)."""
+    out = ""
+    for dist in dists:
+        try:
+            version = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            version = "-"
+        out += f"{dist}=={version}\n"
+    return out
 
 
 def package_root() -> Path:
@@ -145,12 +155,8 @@ def result_key(kind: str, material: bytes, libraries: tuple[str, ...] = ()) -> s
     ``material``: the computation's inputs, serialised (equal bytes for equal inputs). The key adds what every
     trace depends on (drivecal's source, the traced libraries' versions, the JAX settings, ``XLA_FLAGS``) and
     the versions of ``libraries`` (those the computation runs besides, e.g. ``("jaxonomy",)``)."""
-    h = hashlib.sha256(f"{_fingerprint()}\n{_settings()}\n{os.environ.get('XLA_FLAGS', '')}\n{kind}\n".encode())
-    for dist in libraries:
-        try:
-            h.update(f"{dist}=={metadata.version(dist)}\n".encode())
-        except metadata.PackageNotFoundError:
-            h.update(f"{dist}==-\n".encode())
+    h = hashlib.sha256(f"{_fingerprint()}\n{_settings()}\n{os.environ.get('XLA_FLAGS', '')}\n{kind}\n"
+                       f"{_versions(libraries)}".encode())
     h.update(material)
     return h.hexdigest()
 
