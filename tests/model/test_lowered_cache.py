@@ -155,6 +155,73 @@ def test_tracers_damaged_entries_and_cache_off_take_the_plain_call(store, monkey
     np.testing.assert_array_equal(traced.call(_f, "f", x, y, scale=2.5)["a"], _f(x, y, scale=2.5)["a"])
 
 
+def _counting_exports(monkeypatch, barrier=None):
+    """``_export`` wrapped: how many run, and the most at once (each waits at ``barrier``, else 50 ms)."""
+    import threading
+    import time
+
+    export, lock, seen = traced._export, threading.Lock(), {"calls": 0, "active": 0, "most": 0}
+
+    def counted(*args, **kwargs):
+        with lock:
+            seen["calls"] += 1
+            seen["active"] += 1
+            seen["most"] = max(seen["most"], seen["active"])
+        try:
+            barrier.wait(timeout=30) if barrier is not None else time.sleep(0.05)
+            return export(*args, **kwargs)
+        finally:
+            with lock:
+                seen["active"] -= 1
+
+    monkeypatch.setattr(traced, "_export", counted)
+    return seen
+
+
+def _in_threads(jobs):
+    import concurrent.futures
+    import contextvars
+
+    with concurrent.futures.ThreadPoolExecutor(len(jobs)) as pool:
+        return [f.result() for f in [pool.submit(contextvars.copy_context().run, job) for job in jobs]]
+
+
+def test_threads_asking_for_one_program_at_once_export_it_once(store, monkeypatch):
+    x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
+    seen = _counting_exports(monkeypatch)
+    outs = _in_threads([lambda: traced.call(_f, "f", x, y, scale=2.5)] * 4)
+    assert seen["calls"] == 1
+    for out in outs:
+        np.testing.assert_array_equal(out["a"], _f(x, y, scale=2.5)["a"])
+
+
+def test_work_ahead_of_need_compiles_one_program_at_a_time(store, monkeypatch):
+    """Marked ``ahead_of_need``, new programs trace and compile one after the other; unmarked, side by side."""
+    import threading
+
+    x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
+    scales = (1.0, 2.0, 3.0)
+    # unmarked: all three meet inside _export (a barrier of three: they would time out one after the other)
+    seen = _counting_exports(monkeypatch, threading.Barrier(3))
+    _in_threads([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
+    assert seen["calls"] == 3 and seen["most"] == 3
+    monkeypatch.undo()  # a new store, as in a new process
+    (store / "ahead").mkdir()
+    monkeypatch.setattr(traced, "directory", lambda: store / "ahead")
+    monkeypatch.setattr(traced, "_LOADED", {})
+    seen = _counting_exports(monkeypatch)
+    with traced.ahead_of_need():
+        outs = _in_threads([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
+    assert seen["calls"] == 3 and seen["most"] == 1
+    for s, out in zip(scales, outs):
+        np.testing.assert_array_equal(out["a"], _f(x, y, scale=s)["a"])
+    # kept programs load side by side, marked or not: no export at all
+    monkeypatch.setattr(traced, "_LOADED", {})
+    with traced.ahead_of_need():
+        _in_threads([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
+    assert seen["calls"] == 3
+
+
 def test_sensitivity_jacobian_kept_equals_plain(store, truth, monkeypatch):
     exp = dc.Experiment.from_plan(dc.locked_q_step_plan())
     kept = np.asarray(dc.sensitivity_jacobian(truth, exp))

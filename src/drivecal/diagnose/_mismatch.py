@@ -25,14 +25,18 @@ tests to choose which effects to fit; what is left after that is advised.
 
 from __future__ import annotations
 
+import concurrent.futures
+import contextvars
 import dataclasses
+import functools
 from typing import Any
 
 import jax
 import numpy as np
 
 from .._stats import chi2_sf
-from ..model import Experiment, model_experiment, predicted_currents, saturation_columns, with_experiment_delay
+from ..model import (Experiment, ahead_of_need, model_experiment, predicted_currents, saturation_columns,
+                     with_experiment_delay)
 from ..identify import sensitivity_jacobian
 from ..physics import BRIDGE, EXPONENT_CANDIDATES, MAGNETIC, MotorParams, is_saturating
 
@@ -160,29 +164,43 @@ def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment
                       effects: tuple[str, ...]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """The fitted parameters' sensitivity columns (m, n) and each effect's probe columns (m, k) at ``motor``.
 
-    ``m`` = 2 x samples (i_d and i_q interleaved per sample, as ``currents.reshape(-1)``).
+    ``m`` = 2 x samples (i_d and i_q interleaved per sample, as ``currents.reshape(-1)``). The fitted
+    columns come from the fit's own sensitivity kernel (``identify.sensitivity_jacobian``: the one its
+    identifiability check runs), each effect's columns from a kernel of its own: the model with that
+    effect alone switched on (``model_experiment``), differentiated along its probes only. The kernels
+    run side by side in threads (XLA releases the GIL while it compiles and loads).
+
+    One kernel for all the columns was a first fit's largest: the delay's two integrations per
+    sample and the dead time's sequential rollout in one program, differentiated along every
+    column (examples/bench.csv: 10.4 s to compile, 9.2 MB to load). Apart, the delay's, the dead
+    time's and the offsets' compile in 1.9, 3.3 and 0.3 s (1.3, 3.9 and 0.2 MB), and the fitted
+    parameters' kernel is the fit's. The columns are the same derivatives at the same motor (the
+    other effects' terms are zero at the nominal values: no dead-time voltage at ``v_dead = 0``, no
+    second sub-interval at a whole-sample delay), equal to float64 rounding.
     """
-    probes = tuple(n for e in effects for n in _ALL_EFFECTS[e][1] if n not in fit_names)
-    step = max(1, _MAX_COLUMNS - len(fit_names))
-    found: dict[str, np.ndarray] = {}
-    fitted = None
-    for k in range(0, max(len(probes), 1), step):
-        all_names = tuple(fit_names) + probes[k:k + step]
-        probe = _one_substep(model_experiment(experiment, motor, all_names))
-        # The currents' rows only (a measured speed as an output adds rows of its own): the tests read current
-        # residuals.
-        jac = np.asarray(sensitivity_jacobian(motor, probe, all_names, probing=True))[: 2 * experiment.num_samples]
-        fitted = jac[:, : len(fit_names)] if fitted is None else fitted
-        found.update({n: jac[:, i] for i, n in enumerate(all_names)})
-    columns = {e: np.stack([found[n] for n in _ALL_EFFECTS[e][1]], axis=1) for e in effects}
+    m = 2 * experiment.num_samples
+    names = tuple(fit_names)
+    groups = {e: tuple(n for n in _ALL_EFFECTS[e][1] if n not in names) for e in effects}
+
+    def fitted_columns() -> np.ndarray:
+        return np.asarray(sensitivity_jacobian(motor, _one_substep(experiment), names))[:m]
+
+    def probe_columns(probes: tuple[str, ...]) -> np.ndarray:
+        # The currents' rows only (a measured speed as an output adds rows of its own): the tests read
+        # current residuals.
+        probe = _one_substep(model_experiment(experiment, motor, probes))
+        return np.asarray(sensitivity_jacobian(motor, probe, probes, probing=True))[:m]
+
+    probed = [p for p in dict.fromkeys(groups.values()) if p]
+    work = [functools.partial(probe_columns, p) for p in probed] + [fitted_columns]
+    results = _side_by_side(work)
+    fitted, found = results[-1], dict(zip(probed, results))
+    columns = {}
+    for e in effects:
+        by_name = {n: fitted[:, names.index(n)] for n in _ALL_EFFECTS[e][1] if n in names}
+        by_name.update({n: found[groups[e]][:, i] for i, n in enumerate(groups[e])})
+        columns[e] = np.stack([by_name[n] for n in _ALL_EFFECTS[e][1]], axis=1)
     return fitted, columns
-
-
-#: Most Jacobian columns (fitted and probed) one score-test kernel takes; more probes run in further kernels.
-#: A saturating motor (R, Ld, Lq, lambda_m and two terms) probed for the delay, the dead time, the offsets and
-#: an encoder offset at once (11 columns, examples/inverter_bench.csv) crashed XLA:CPU with a segmentation
-#: fault; any 10 of them ran.
-_MAX_COLUMNS = 10
 
 
 #: What :func:`prepare_unmodelled_effects` has compiled in this process.
@@ -191,21 +209,39 @@ _PREPARED: set = set()
 
 def prepare_unmodelled_effects(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
                                effects: tuple[str, ...]) -> None:
-    """Trace and compile now the kernel :func:`unmodelled_effects` will run for these effects (run once here, discarded).
+    """Trace and compile now the kernels :func:`unmodelled_effects` will run (each run once here, discarded).
 
-    The score tests' sensitivity columns are the largest kernel of a first fit (seconds to
-    compile); ``select_effects`` calls this in a thread while the base fit compiles, so the two
-    compile side by side. The kernel depends on the experiment's shapes and on which parameters
-    are fitted and probed, not on their values: the later call at the fitted motor finds it ready.
+    The score tests' sensitivity columns (:func:`effect_signatures`, and the magnetic candidates'
+    where ``effects`` name them and the motor is linear) and the residuals' prediction are seconds
+    of compilation in a first fit; ``select_effects`` calls this in a thread while the base fit
+    compiles, so they compile beside it. The kernels depend on the experiment's shapes and on which
+    parameters are fitted and probed, not on their values: the later call at the fitted motor finds
+    them ready (the fitted columns' kernel, the fit's own, is compiled once for both).
     """
     plain = tuple(e for e in effects if e not in MAGNETIC_EFFECTS)
+    magnetic = bool(set(effects) & set(MAGNETIC_EFFECTS)) and not is_saturating(motor)
     leaves, tree = jax.tree_util.tree_flatten(experiment)
-    key = (tuple(fit_names), plain, tree, tuple(np.shape(x) for x in leaves))
-    if plain and key not in _PREPARED:  # once per kernel in a process (a batch's flagged motors share one)
+    key = (tuple(fit_names), plain, magnetic, tree, tuple(np.shape(x) for x in leaves))
+    if (plain or magnetic) and key not in _PREPARED:  # once per kernel in a process (a batch's flagged motors share)
         _PREPARED.add(key)
         # as a fit returns it: the fitted parameters as float64 arrays (a Python float would trace as a weak type)
         motor = with_experiment_delay(motor.with_vector(tuple(fit_names), motor.vector(tuple(fit_names))), experiment)
-        effect_signatures(motor, tuple(fit_names), model_experiment(experiment, motor, tuple(fit_names)), plain)
+        base = model_experiment(experiment, motor, tuple(fit_names))
+        # What unmodelled_effects runs after the fit: kept kernels load side by side, new ones compile one at a
+        # time (model.ahead_of_need), the largest first.
+        work = [lambda: effect_signatures(motor, tuple(fit_names), base, plain)] if plain else []
+        if magnetic:
+            work.append(lambda: saturation_columns(motor, _one_substep(model_experiment(base, motor, MAGNETIC))))
+        work.append(lambda: predicted_currents(motor, base))
+        with ahead_of_need():
+            _side_by_side(work)
+
+
+def _side_by_side(work: list) -> list:
+    """``[job() for job in work]``, each in a thread of its own, in a copy of the caller's context (its
+    ``model.ahead_of_need`` mark)."""
+    with concurrent.futures.ThreadPoolExecutor(len(work)) as pool:
+        return [done.result() for done in [pool.submit(contextvars.copy_context().run, job) for job in work]]
 
 
 def unmodelled_effects(

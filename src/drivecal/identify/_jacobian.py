@@ -1,7 +1,7 @@
 """The sensitivity Jacobian ``d(predicted currents)/d(theta)``, in one compiled pass with the currents.
 
 Forward mode (a few parameters, thousands of outputs), kept on disk by ``model.cached_call``. The score tests'
-Jacobian (``probing=True``: bench effects probed beside the fitted parameters) is the same function compiled
+Jacobian (``probing=True``: a bench effect's columns, the effect switched on) is the same function compiled
 with other XLA options (:data:`PROBE_COMPILER_OPTIONS`).
 """
 
@@ -20,8 +20,8 @@ def sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tupl
 
     Rows alternate i_d, i_q sample by sample (the flattening of (M, 2)). With the measured speed
     as an output (``Experiment.speed_outputs``) the weighted speed's rows follow (K more rows, in
-    the currents' units: ``speed_weight`` A per rad/s). ``probing``: the score tests' columns (bench
-    effects probed beside the fitted parameters), compiled with :data:`PROBE_COMPILER_OPTIONS`.
+    the currents' units: ``speed_weight`` A per rad/s). ``probing``: a score test's columns (a bench
+    effect's probes), compiled with :data:`PROBE_COMPILER_OPTIONS`.
     """
     return jacobian_and_outputs(motor, experiment, names, probing=probing)[0]
 
@@ -53,11 +53,10 @@ def _jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...]
     return jax.jacfwd(with_value, has_aux=True)(theta)
 
 
-#: XLA:CPU options of the score tests' Jacobians (``probing=True``): the fitted parameters' columns and the
-#: bench effects' (the delay and the dead time switched on in the rollout). With XLA's default fusion emitters
-#: the default plan's kernel took 11.0 s to compile (19 s of CPU) into 360 object files; with the legacy
-#: emitters 7.4 s (12 s of CPU), 69 object files (a later process loads either in ~1.5 s: most of the
-#: executable is its HLO, some 50 000 named instructions, not their code). Only this kernel: the Jaxonomy
+#: XLA:CPU options of the score tests' Jacobians (``probing=True``): a bench effect's columns, the effect
+#: switched on in the rollout (``diagnose.effect_signatures``). With XLA's legacy fusion emitters, on
+#: examples/bench.csv, the delay's kernel compiled in 1.9 s against 3.7 s with the default emitters, the
+#: dead time's in 3.3 s against 5.3 s (the same sizes, 1.3 and 3.9 MB). Only these kernels: the Jaxonomy
 #: engine's simulations ran several times slower with the legacy emitters (docs/performance.md), and the
 #: fit's and the designs' kernels keep their numbers to the last bit.
 PROBE_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
