@@ -222,6 +222,32 @@ def test_work_ahead_of_need_compiles_one_program_at_a_time(store, monkeypatch):
     assert seen["calls"] == 3
 
 
+def test_a_call_needed_now_never_waits_behind_the_queue_of_work_ahead_of_need(store, monkeypatch):
+    """An ahead-of-need thread waiting for its turn to export holds no key's lock: the caller that needs the
+    same program now exports it at once, and the waiting thread then finds it."""
+    import contextvars
+    import threading
+
+    x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
+    seen = _counting_exports(monkeypatch)
+    traced._AHEAD_EXPORTS.acquire()  # another ahead-of-need export under way
+    try:
+        context = contextvars.copy_context()
+        context.run(lambda: traced._AHEAD.set(True))
+        ahead = threading.Thread(target=context.run, args=(lambda: traced.call(_f, "f", x, y, scale=2.5),))
+        ahead.start()
+        ahead.join(timeout=0.5)
+        assert ahead.is_alive()  # queued for its turn
+        now = threading.Thread(target=lambda: traced.call(_f, "f", x, y, scale=2.5))
+        now.start()
+        now.join(timeout=60)
+        assert not now.is_alive() and seen["calls"] == 1
+    finally:
+        traced._AHEAD_EXPORTS.release()
+    ahead.join(timeout=60)
+    assert not ahead.is_alive() and seen["calls"] == 1
+
+
 def test_sensitivity_jacobian_kept_equals_plain(store, truth, monkeypatch):
     exp = dc.Experiment.from_plan(dc.locked_q_step_plan())
     kept = np.asarray(dc.sensitivity_jacobian(truth, exp))

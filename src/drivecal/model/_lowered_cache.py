@@ -391,6 +391,26 @@ def _strongly_typed(leaf: Any) -> Any:
     return leaf
 
 
+def _load_or_export(key: str, path: Path, export: Callable[[Path], Any]) -> None:
+    """Put ``key``'s entry in ``_LOADED``: kept at ``path``, else ``export(path)``, once across threads.
+
+    A thread marked :func:`ahead_of_need` queues for its turn to export before it takes the key's
+    lock, not while holding it: a thread that needs the program now never waits behind that queue.
+    """
+    with _KEY_LOCKS_GUARD:
+        lock = _KEY_LOCKS.setdefault(key, threading.Lock())
+    with lock:
+        if key not in _LOADED:
+            entry = _load(path)
+            if entry is not False:
+                _LOADED[key] = entry
+    if key in _LOADED:
+        return
+    with _AHEAD_EXPORTS if _AHEAD.get() else contextlib.nullcontext(), lock:
+        if key not in _LOADED:
+            _LOADED[key] = export(path)
+
+
 def call(fn: Callable, name: str, *args: Any, compiler_options: dict | None = None, **static: Any) -> Any:
     """``fn(*args, **static)``, traced once per machine rather than once per process.
 
@@ -424,16 +444,8 @@ def call(fn: Callable, name: str, *args: Any, compiler_options: dict | None = No
         logger.debug("drivecal: no cache key for %s (%s)", name, exc)
         return fn(*args, **static)
     if key not in _LOADED:
-        with _KEY_LOCKS_GUARD:
-            lock = _KEY_LOCKS.setdefault(key, threading.Lock())
-        with lock:
-            if key not in _LOADED:
-                path = folder / f"{name}-{key[:32]}.pkl"
-                entry = _load(path)
-                if entry is False:
-                    with _AHEAD_EXPORTS if _AHEAD.get() else contextlib.nullcontext():
-                        entry = _export(fn, name, leaves, treedef, static, path, compiler_options)
-                _LOADED[key] = entry
+        _load_or_export(key, folder / f"{name}-{key[:32]}.pkl",
+                        lambda path: _export(fn, name, leaves, treedef, static, path, compiler_options))
     entry = _LOADED[key]
     if entry is None:
         return fn(*args, **static)
