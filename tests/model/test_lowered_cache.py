@@ -178,18 +178,10 @@ def _counting_exports(monkeypatch, barrier=None):
     return seen
 
 
-def _in_threads(jobs):
-    import concurrent.futures
-    import contextvars
-
-    with concurrent.futures.ThreadPoolExecutor(len(jobs)) as pool:
-        return [f.result() for f in [pool.submit(contextvars.copy_context().run, job) for job in jobs]]
-
-
 def test_threads_asking_for_one_program_at_once_export_it_once(store, monkeypatch):
     x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
     seen = _counting_exports(monkeypatch)
-    outs = _in_threads([lambda: traced.call(_f, "f", x, y, scale=2.5)] * 4)
+    outs = traced.side_by_side([lambda: traced.call(_f, "f", x, y, scale=2.5)] * 4)
     assert seen["calls"] == 1
     for out in outs:
         np.testing.assert_array_equal(out["a"], _f(x, y, scale=2.5)["a"])
@@ -203,7 +195,7 @@ def test_work_ahead_of_need_compiles_one_program_at_a_time(store, monkeypatch):
     scales = (1.0, 2.0, 3.0)
     # unmarked: all three meet inside _export (a barrier of three: they would time out one after the other)
     seen = _counting_exports(monkeypatch, threading.Barrier(3))
-    _in_threads([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
+    traced.side_by_side([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
     assert seen["calls"] == 3 and seen["most"] == 3
     monkeypatch.undo()  # a new store, as in a new process
     (store / "ahead").mkdir()
@@ -211,14 +203,14 @@ def test_work_ahead_of_need_compiles_one_program_at_a_time(store, monkeypatch):
     monkeypatch.setattr(traced, "_LOADED", {})
     seen = _counting_exports(monkeypatch)
     with traced.ahead_of_need():
-        outs = _in_threads([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
+        outs = traced.side_by_side([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
     assert seen["calls"] == 3 and seen["most"] == 1
     for s, out in zip(scales, outs):
         np.testing.assert_array_equal(out["a"], _f(x, y, scale=s)["a"])
     # kept programs load side by side, marked or not: no export at all
     monkeypatch.setattr(traced, "_LOADED", {})
     with traced.ahead_of_need():
-        _in_threads([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
+        traced.side_by_side([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
     assert seen["calls"] == 3
 
 

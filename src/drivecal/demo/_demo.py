@@ -10,8 +10,8 @@
 
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
+import functools
 import json
 from pathlib import Path
 from typing import Any, Callable
@@ -21,6 +21,7 @@ import numpy as np
 from ..bench import engine_bench
 from ..data import BenchData
 from ..fitting import fit
+from ..model import side_by_side
 from ..results import Calibration, demo_document
 from ..physics import DEFAULT_MOTOR, MotorParams
 from ..plan import Plan, default_plan, locked_q_step_plan
@@ -89,14 +90,13 @@ class DemoResult:
 
 
 def _both(work: Callable[[Any], Any], items: tuple) -> list:
-    """``[work(x) for x in items]``, each in a thread of its own.
+    """``[work(x) for x in items]``, each in a thread of its own (``model.side_by_side``).
 
     A first run spends most of its time compiling (XLA releases the GIL while it compiles),
     so the two designs' kernels compile side by side on a machine with two cores. The work
     is the same as one after the other, and so are the numbers.
     """
-    with concurrent.futures.ThreadPoolExecutor(len(items)) as pool:
-        return list(pool.map(work, items))
+    return side_by_side([functools.partial(work, x) for x in items])
 
 
 def _fit_design(label: str, plan: Plan, clean: BenchData, guess: MotorParams, noise: float, seed: int) -> DesignRun:

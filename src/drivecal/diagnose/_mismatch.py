@@ -25,8 +25,6 @@ tests to choose which effects to fit; what is left after that is advised.
 
 from __future__ import annotations
 
-import concurrent.futures
-import contextvars
 import dataclasses
 import functools
 from typing import Any
@@ -36,7 +34,7 @@ import numpy as np
 
 from .._stats import chi2_sf
 from ..model import (Experiment, ahead_of_need, model_experiment, predicted_currents, saturation_columns,
-                     with_experiment_delay)
+                     side_by_side, with_experiment_delay)
 from ..identify import sensitivity_jacobian
 from ..physics import BRIDGE, EXPONENT_CANDIDATES, MAGNETIC, MotorParams, is_saturating
 
@@ -193,7 +191,7 @@ def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment
 
     probed = [p for p in dict.fromkeys(groups.values()) if p]
     work = [functools.partial(probe_columns, p) for p in probed] + [fitted_columns]
-    results = _side_by_side(work)
+    results = side_by_side(work)
     fitted, found = results[-1], dict(zip(probed, results))
     columns = {}
     for e in effects:
@@ -234,14 +232,7 @@ def prepare_unmodelled_effects(motor: MotorParams, fit_names: tuple[str, ...], e
             work.append(lambda: saturation_columns(motor, _one_substep(model_experiment(base, motor, MAGNETIC))))
         work.append(lambda: predicted_currents(motor, base))
         with ahead_of_need():
-            _side_by_side(work)
-
-
-def _side_by_side(work: list) -> list:
-    """``[job() for job in work]``, each in a thread of its own, in a copy of the caller's context (its
-    ``model.ahead_of_need`` mark)."""
-    with concurrent.futures.ThreadPoolExecutor(len(work)) as pool:
-        return [done.result() for done in [pool.submit(contextvars.copy_context().run, job) for job in work]]
+            side_by_side(work)
 
 
 def unmodelled_effects(

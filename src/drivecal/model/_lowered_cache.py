@@ -88,6 +88,16 @@ def ahead_of_need():
         _AHEAD.reset(token)
 
 
+def side_by_side(jobs: list[Callable[[], Any]]) -> list:
+    """``[job() for job in jobs]``, each in a thread of its own, in a copy of the caller's context (its
+    :func:`ahead_of_need` mark): kernels compile and load side by side (XLA releases the GIL); the
+    numbers are those of one after the other."""
+    import concurrent.futures
+
+    with concurrent.futures.ThreadPoolExecutor(len(jobs)) as pool:
+        return [done.result() for done in [pool.submit(contextvars.copy_context().run, job) for job in jobs]]
+
+
 def directory() -> Path | None:
     """Where lowered programs are kept (inside the compilation cache), or None when caching is off."""
     from .._setup import cache_enabled as _cache_enabled
