@@ -189,6 +189,44 @@ def test_version(capsys):
     assert capsys.readouterr().out == f"drivecal, version {__version__}\n"
 
 
+# The drivecal program as its script runs it (main() on sys.argv), with an object the interpreter's teardown
+# would free (and so print) and an atexit callback registered while the command runs, as a command's own are.
+_PROGRAM = """
+import atexit, sys
+from drivecal.cli import _common
+
+class Freed:
+    def __del__(self):
+        print("torn down", flush=True)
+
+FREED = Freed()
+run = _common._run
+
+def command(argv):
+    atexit.register(print, "cleaned up", flush=True)
+    return run(argv)
+
+_common._run = command
+sys.argv = ["drivecal"] + sys.argv[1:]
+sys.exit(_common.main())
+"""
+
+
+@pytest.mark.parametrize("args, status, out", [(["--version"], 0, "drivecal, version"),
+                                               (["report", "no-such-result.json"], 2, "")])
+def test_the_program_ends_with_its_status_after_cleaning_up_without_teardown(args, status, out):
+    """The program's exit: its status, its output whole, the atexit callbacks run, the teardown skipped."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _PROGRAM, *args], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == status, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert lines[-1] == "cleaned up" and "torn down" not in lines
+    assert lines[0].startswith(out) and len(lines) == (2 if out else 1)
+    assert (status == 2) == proc.stderr.startswith("drivecal: error: no-such-result.json")
+
+
 
 
 
