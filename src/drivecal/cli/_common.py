@@ -264,7 +264,7 @@ def _end_without_teardown() -> None:
 
     Registered first, it runs last: Python has joined the threads and run every other ``atexit``
     callback (files closed, temporary directories removed, logging shut down). What is left, freeing
-    every module and object (the XLA client with its loaded executables among them), took 0.5-0.8 s
+    every module and object (the XLA client with its loaded executables among them), took 0.4-0.8 s
     of every command that ran JAX, and frees nothing the operating system does not free at exit.
     """
     for stream in (sys.stdout, sys.stderr):
