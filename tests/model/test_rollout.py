@@ -193,3 +193,31 @@ def test_locked_segments_from_constant_affine_step():
 
     np.testing.assert_allclose(derivative(forward_mode), derivative(dataclasses.replace(experiment, segments=None)),
                                rtol=1e-11)
+
+
+def _stage_loop_cases() -> dict[str, tuple[dc.MotorParams, dc.Experiment, int]]:
+    """Every path that takes RK4 steps: the segment-wise scans (locked, measured and simulated speed, thermal),
+    the one scan with dead time, a fractional delay (two sub-intervals a period), the saturating flux model."""
+    cases = {k: v for k, v in CASES.items() if k != "one-sample segment"}
+    short = CASES["one-sample segment"][1]
+    dead = dc.DEFAULT_MOTOR.replace(v_dead=0.3)
+    cases["dead time"] = (dead, model_experiment(short, dead, ()), 4)
+    late = dc.DEFAULT_MOTOR.replace(delay=0.4)
+    cases["fractional delay"] = (late, model_experiment(CASES["default plan"][1], late, ("delay",)), 2)
+    iron = dc.DEFAULT_MOTOR.replace(sat_d=0.3, sat_q=1.5, sat_dq=0.5, i_ref=20.0, exp_d=2.0, exp_q=2.0)
+    cases["saturating"] = (iron, model_experiment(short, iron, ()), 2)
+    return cases
+
+
+@pytest.mark.parametrize("case", list(_stage_loop_cases()))
+def test_rk4_stages_as_a_loop_give_the_same_states_and_tangents(case):
+    """``Experiment.stage_loop`` (the score tests' kernels) does the same arithmetic as the unrolled step: only
+    the compiled program differs, so the states and their forward-mode tangents agree to rounding."""
+    motor, experiment, keep = _stage_loop_cases()[case]
+    assert not experiment.stage_loop
+    theta = motor.vector(NAMES)
+    ref, ref_jac = _states_and_jacobian(theta, motor, experiment, keep)
+    states, jac = _states_and_jacobian(theta, motor, dataclasses.replace(experiment, stage_loop=True), keep)
+    assert np.max(np.abs(np.asarray(ref[:, :2]))) > 1.0
+    np.testing.assert_allclose(states, ref, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(jac * theta, ref_jac * theta, rtol=1e-12, atol=1e-12)

@@ -52,6 +52,7 @@ def rk4_step(
     coefficients: DqCoefficients | None = None,
     conducting: Any = 1.0,
     period: Any = None,
+    stage_loop: bool = False,
 ) -> tuple:
     """One classical Runge-Kutta step of length ``dt`` (s) with the input held.
 
@@ -64,7 +65,7 @@ def rk4_step(
     ``coefficients`` are ``dq_coefficients(motor)`` when already at hand.
     ``period`` (s): the PWM carrier period, for the dead-time error's ripple (``physics.bridge_error``).
     Where ``conducting`` is 0 the inverter is off: the currents are held at zero
-    and only the rotor moves (a coast-down).
+    and only the rotor moves (a coast-down). ``stage_loop`` (static): RK4's stages as a loop (``_steps._rk4``).
     """
     c = dq_coefficients(motor) if coefficients is None else coefficients
     if speed is None:
@@ -81,7 +82,7 @@ def rk4_step(
         d = dq_derivatives_from(c, x, v, locked)
         return conducting * d[0], conducting * d[1], (1.0 - speed_input) * d[2], d[3]
 
-    out = _rk4(f, tuple(state), dt, tuple(speed))
+    out = _rk4(f, tuple(state), dt, tuple(speed), stage_loop)
     return (conducting * out[0], conducting * out[1], jnp.where(speed_input > 0, speed[2], out[2]), out[3])
 
 
@@ -151,7 +152,7 @@ def _coast_segment(motor: MotorParams, experiment: Experiment, start: int, stop:
         return dq_derivatives_from(c, (0.0, 0.0, x[0]), (0.0, 0.0), experiment.locked[start])[2:]
 
     def body(x, _):
-        return _rk4(f, x, experiment.sample_period, (None, None, None)), x
+        return _rk4(f, x, experiment.sample_period, (None, None, None), experiment.stage_loop), x
 
     w, theta = jax.lax.scan(body, (w0, theta0), None, length=end - start)[1]
     w = jnp.where(experiment.speed_input[start:end] > 0, experiment.speed[start:end, 0], w)
@@ -202,7 +203,8 @@ def _linear_segment(motor: MotorParams, experiment: Experiment, start: int, stop
         scan = functools.partial(_scan_affine_constant, varying=len(volts))
     else:
         scan = _scan_states
-    step = functools.partial(_linear_step, experiment.sample_period, experiment.thermal, before is not None)
+    step = functools.partial(_linear_step, experiment.sample_period, experiment.thermal, before is not None,
+                             experiment.stage_loop)
     i_d, i_q = scan(step, params, (x0[0], x0[1]), inputs)
     return (i_d, i_q, w, theta)[:keep]
 
@@ -227,11 +229,11 @@ def _constant_linear_part(experiment: Experiment, start: int, stop: int) -> bool
     return not experiment.thermal and (start, stop, "locked") in (experiment.segments or ())
 
 
-def _linear_step(dt: Any, thermal: bool, fractional: bool, params: Any, x: tuple, u: tuple) -> tuple:
+def _linear_step(dt: Any, thermal: bool, fractional: bool, loop: bool, params: Any, x: tuple, u: tuple) -> tuple:
     """One sample period of the currents ``x = (i_d, i_q)`` with the speed at the stages given (:func:`_held`).
 
     ``u = (v_d, v_q[, v_d_before, v_q_before], w_m(t), w_m(t + dt/2), w_m(t + dt)[, R/Ld, R/Lq])``;
-    ``params`` as :func:`_voltage_inputs` gives them.
+    ``params`` as :func:`_voltage_inputs` gives them; ``loop``: RK4's stages as a loop (``_steps._rk4``).
     """
     c, before, u = _step_parts(params, u, fractional)
     if thermal:
@@ -240,7 +242,7 @@ def _linear_step(dt: Any, thermal: bool, fractional: bool, params: Any, x: tuple
     def f_with(v):
         return lambda i, w_stage: dq_derivatives_from(c, (i[0], i[1], w_stage), v, True)[:2]
 
-    return _held(f_with, x, dt, (u[0], u[1]), before, (u[2], u[3], u[4]))
+    return _held(f_with, x, dt, (u[0], u[1]), before, (u[2], u[3], u[4]), loop)
 
 
 def _step_parts(params: Any, u: tuple, fractional: bool) -> tuple[DqCoefficients, Any, tuple]:
@@ -265,12 +267,13 @@ def _free_segment(motor: MotorParams, experiment: Experiment, start: int, stop: 
     volts, params = _voltage_inputs(experiment, start, end, before, c)
     x0 = _start(experiment, start, x0)[:dims]
     scan = _scan_linearised_tangents if experiment.linearised_tangents else _scan_states
-    step = functools.partial(_free_step, experiment.sample_period, experiment.thermal, before is not None)
+    step = functools.partial(_free_step, experiment.sample_period, experiment.thermal, before is not None,
+                             experiment.stage_loop)
     states = scan(step, params, x0, volts + per_sample)
     return tuple(states[:keep])
 
 
-def _free_step(dt: Any, thermal: bool, fractional: bool, params: Any, x: tuple, u: tuple) -> tuple:
+def _free_step(dt: Any, thermal: bool, fractional: bool, loop: bool, params: Any, x: tuple, u: tuple) -> tuple:
     """One sample period of ``x = (i_d, i_q, w_m[, theta_m])``; ``u = (v_d, v_q[, v_d_before, v_q_before][, R/Ld, R/Lq])``."""
     c, before, u = _step_parts(params, u, fractional)
     if thermal:
@@ -279,7 +282,7 @@ def _free_step(dt: Any, thermal: bool, fractional: bool, params: Any, x: tuple, 
     def f_with(v):
         return lambda state, _: dq_derivatives_from(c, state, v, False)[: len(x)]
 
-    return _held(f_with, x, dt, (u[0], u[1]), before, (None, None, None))
+    return _held(f_with, x, dt, (u[0], u[1]), before, (None, None, None), loop)
 
 
 def _rollout_sequential(motor: MotorParams, experiment: Experiment, keep: int) -> jnp.ndarray:
@@ -314,7 +317,8 @@ def _rollout_sequential(motor: MotorParams, experiment: Experiment, keep: int) -
         def advance(x, v, a, b):
             stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
             return rk4_step(x, v, warm, locked, (b - a) * dt, stages, speed_input, theta_e_start=theta_e_start,
-                            dead_time=experiment.dead_time, coefficients=c, conducting=conducting, period=dt)
+                            dead_time=experiment.dead_time, coefficients=c, conducting=conducting, period=dt,
+                            stage_loop=experiment.stage_loop)
 
         return _substeps(advance, x, pieces, substeps), jnp.stack(x[:keep])
 
