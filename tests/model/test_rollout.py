@@ -195,7 +195,7 @@ def test_locked_segments_from_constant_affine_step():
                                rtol=1e-11)
 
 
-def _stage_loop_cases() -> dict[str, tuple[dc.MotorParams, dc.Experiment, int]]:
+def _rolled_cases() -> dict[str, tuple[dc.MotorParams, dc.Experiment, int]]:
     """Every path that takes RK4 steps: the segment-wise scans (locked, measured and simulated speed, thermal),
     the one scan with dead time, a fractional delay (two sub-intervals a period), the saturating flux model."""
     cases = {k: v for k, v in CASES.items() if k != "one-sample segment"}
@@ -209,15 +209,15 @@ def _stage_loop_cases() -> dict[str, tuple[dc.MotorParams, dc.Experiment, int]]:
     return cases
 
 
-@pytest.mark.parametrize("case", list(_stage_loop_cases()))
+@pytest.mark.parametrize("case", list(_rolled_cases()))
 def test_rk4_stages_as_a_loop_give_the_same_states_and_tangents(case):
-    """``Experiment.stage_loop`` (the score tests' kernels) does the same arithmetic as the unrolled step: only
+    """``Experiment.rolled`` (the score tests' kernels) does the same arithmetic as the unrolled step: only
     the compiled program differs, so the states and their forward-mode tangents agree to rounding."""
-    motor, experiment, keep = _stage_loop_cases()[case]
-    assert not experiment.stage_loop
+    motor, experiment, keep = _rolled_cases()[case]
+    assert not experiment.rolled
     theta = motor.vector(NAMES)
     ref, ref_jac = _states_and_jacobian(theta, motor, experiment, keep)
-    states, jac = _states_and_jacobian(theta, motor, dataclasses.replace(experiment, stage_loop=True), keep)
+    states, jac = _states_and_jacobian(theta, motor, dataclasses.replace(experiment, rolled=True), keep)
     assert np.max(np.abs(np.asarray(ref[:, :2]))) > 1.0
     np.testing.assert_allclose(states, ref, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(jac * theta, ref_jac * theta, rtol=1e-12, atol=1e-12)

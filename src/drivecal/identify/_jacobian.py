@@ -3,7 +3,7 @@
 Forward mode (a few parameters, thousands of outputs), kept on disk by ``model.cached_call``. The score tests'
 Jacobian (``probing=True``: a bench effect's columns, the effect switched on) is the same function compiled
 with other XLA options (:data:`PROBE_COMPILER_OPTIONS`) and each RK4 step's stages as a loop
-(``Experiment.stage_loop``).
+(``Experiment.rolled``).
 """
 
 from __future__ import annotations
@@ -32,8 +32,8 @@ def sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tupl
 def jacobian_and_outputs(motor: MotorParams, experiment: Experiment, names: tuple[str, ...] = ESTIMATED, *,
                          probing: bool = False) -> tuple[jnp.ndarray, jnp.ndarray]:
     """:func:`sensitivity_jacobian` and the predicted outputs it is the derivative of (2M or 2M + K rows), in one pass."""
-    if probing:  # RK4's stages as a loop: the dead time's program a fifth of the size (Experiment.stage_loop)
-        experiment = dataclasses.replace(experiment, stage_loop=True)
+    if probing:  # RK4's stages as a loop: the dead time's program a fifth of the size (Experiment.rolled)
+        experiment = dataclasses.replace(experiment, rolled=True)
         return cached_call(_probe_jacobian, "probe_jacobian", motor, experiment, names=tuple(names),
                            compiler_options=PROBE_COMPILER_OPTIONS)
     return cached_call(_sensitivity_jacobian, "sensitivity_jacobian", motor, experiment, names=tuple(names))

@@ -97,10 +97,11 @@ class Experiment(eqx.Module):
             (static; ``physics.has_bridge``): the rollout evaluates the whole law, else the law about the
             magnet without the bridge (the same currents, with less work). Switched on by
             :func:`model_experiment` when ``sat_b`` is estimated or either is non-zero.
-        stage_loop: each RK4 step's four stages as a loop in the program (static; ``_steps._rk4``): the
+        rolled: the model's repeated steps kept as loops in the program (static): each RK4 step's four
+            stages (``_steps._rk4``) and the start flux's Newton steps (``physics.flux_of_currents``). The
             same arithmetic (the results agree to rounding) in a program a fraction of the size, which
-            compiles and loads several times faster. The score tests' Jacobians use it
-            (``identify.sensitivity_jacobian(probing=True)``).
+            compiles and loads several times faster. The score tests' kernels use it
+            (``identify.sensitivity_jacobian(probing=True)``, ``saturation_columns``).
     """
 
     voltages: jnp.ndarray
@@ -127,7 +128,7 @@ class Experiment(eqx.Module):
     linearised_tangents: bool = eqx.field(static=True, default=True)
     saturating: bool = eqx.field(static=True, default=False)
     bridge: bool = eqx.field(static=True, default=False)
-    stage_loop: bool = eqx.field(static=True, default=False)
+    rolled: bool = eqx.field(static=True, default=False)
 
     @property
     def num_samples(self) -> int:

@@ -36,7 +36,7 @@ def rollout_flux(motor: MotorParams, experiment: Experiment, keep: int, conducti
     # flux once, outside the scan.
     law = magnet_point(motor) if experiment.bridge else False
     psi_d0, psi_q0 = flux_of_currents(experiment.initial_state[:, 0], experiment.initial_state[:, 1], motor,
-                                      bridge=law)
+                                      bridge=law, loop=experiment.rolled)
     start_flux = jnp.stack([psi_d0, psi_q0, experiment.initial_state[:, 2], experiment.initial_state[:, 3]], axis=1)
     substeps = experiment.dead_time_substeps if experiment.dead_time else 1
     pieces_per_sample = 1 if before is None else 2
@@ -67,7 +67,7 @@ def rollout_flux(motor: MotorParams, experiment: Experiment, keep: int, conducti
         def advance(x, v, a, b):
             stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
             width = stable_dead_width(motor.i_dead, motor.v_dead, motor.Ld, motor.Lq, (b - a) * dt)
-            return _rk4(f_with((v[0], v[1]), width), x, (b - a) * dt, stages, experiment.stage_loop)
+            return _rk4(f_with((v[0], v[1]), width), x, (b - a) * dt, stages, experiment.rolled)
 
         x_next = _substeps(advance, x, pieces[:pieces_per_sample], substeps)
         x_next = (x_next[0], x_next[1], jnp.where(speed_input > 0, speed[2], x_next[2]), x_next[3])

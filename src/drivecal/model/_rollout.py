@@ -52,7 +52,7 @@ def rk4_step(
     coefficients: DqCoefficients | None = None,
     conducting: Any = 1.0,
     period: Any = None,
-    stage_loop: bool = False,
+    rolled: bool = False,
 ) -> tuple:
     """One classical Runge-Kutta step of length ``dt`` (s) with the input held.
 
@@ -65,7 +65,7 @@ def rk4_step(
     ``coefficients`` are ``dq_coefficients(motor)`` when already at hand.
     ``period`` (s): the PWM carrier period, for the dead-time error's ripple (``physics.bridge_error``).
     Where ``conducting`` is 0 the inverter is off: the currents are held at zero
-    and only the rotor moves (a coast-down). ``stage_loop`` (static): RK4's stages as a loop (``_steps._rk4``).
+    and only the rotor moves (a coast-down). ``rolled`` (static): RK4's stages as a loop (``_steps._rk4``).
     """
     c = dq_coefficients(motor) if coefficients is None else coefficients
     if speed is None:
@@ -82,7 +82,7 @@ def rk4_step(
         d = dq_derivatives_from(c, x, v, locked)
         return conducting * d[0], conducting * d[1], (1.0 - speed_input) * d[2], d[3]
 
-    out = _rk4(f, tuple(state), dt, tuple(speed), stage_loop)
+    out = _rk4(f, tuple(state), dt, tuple(speed), rolled)
     return (conducting * out[0], conducting * out[1], jnp.where(speed_input > 0, speed[2], out[2]), out[3])
 
 
@@ -152,7 +152,7 @@ def _coast_segment(motor: MotorParams, experiment: Experiment, start: int, stop:
         return dq_derivatives_from(c, (0.0, 0.0, x[0]), (0.0, 0.0), experiment.locked[start])[2:]
 
     def body(x, _):
-        return _rk4(f, x, experiment.sample_period, (None, None, None), experiment.stage_loop), x
+        return _rk4(f, x, experiment.sample_period, (None, None, None), experiment.rolled), x
 
     w, theta = jax.lax.scan(body, (w0, theta0), None, length=end - start)[1]
     w = jnp.where(experiment.speed_input[start:end] > 0, experiment.speed[start:end, 0], w)
@@ -204,7 +204,7 @@ def _linear_segment(motor: MotorParams, experiment: Experiment, start: int, stop
     else:
         scan = _scan_states
     step = functools.partial(_linear_step, experiment.sample_period, experiment.thermal, before is not None,
-                             experiment.stage_loop)
+                             experiment.rolled)
     i_d, i_q = scan(step, params, (x0[0], x0[1]), inputs)
     return (i_d, i_q, w, theta)[:keep]
 
@@ -268,7 +268,7 @@ def _free_segment(motor: MotorParams, experiment: Experiment, start: int, stop: 
     x0 = _start(experiment, start, x0)[:dims]
     scan = _scan_linearised_tangents if experiment.linearised_tangents else _scan_states
     step = functools.partial(_free_step, experiment.sample_period, experiment.thermal, before is not None,
-                             experiment.stage_loop)
+                             experiment.rolled)
     states = scan(step, params, x0, volts + per_sample)
     return tuple(states[:keep])
 
@@ -318,7 +318,7 @@ def _rollout_sequential(motor: MotorParams, experiment: Experiment, keep: int) -
             stages = tuple(_quadratic(speed, u) for u in (a, 0.5 * (a + b), b))
             return rk4_step(x, v, warm, locked, (b - a) * dt, stages, speed_input, theta_e_start=theta_e_start,
                             dead_time=experiment.dead_time, coefficients=c, conducting=conducting, period=dt,
-                            stage_loop=experiment.stage_loop)
+                            rolled=experiment.rolled)
 
         return _substeps(advance, x, pieces, substeps), jnp.stack(x[:keep])
 

@@ -7,6 +7,8 @@ rollout, all in one compiled, batched program.
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -42,7 +44,9 @@ def saturation_columns(motor: MotorParams, experiment: Experiment) -> np.ndarray
                 rows.append(motor.replace(**changes))
     # Stacked on the host (NumPy): one device array per leaf, not one per leaf and row (~0.3 s of a warm fit).
     batch = jax.tree_util.tree_map(lambda *xs: np.stack([np.asarray(x, dtype=np.float64) for x in xs]), *rows)
-    out = np.asarray(cached_call(_batched_currents, "saturation_columns", batch, experiment))
+    # The model's steps as loops (Experiment.rolled): the same columns from a program half the size.
+    out = np.asarray(cached_call(_batched_currents, "saturation_columns", batch,
+                                 dataclasses.replace(experiment, rolled=True)))
     count = len(EXPONENT_CANDIDATES[MAGNETIC[0]][1])
     out = out.reshape(len(MAGNETIC), count, 2, *out.shape[1:])
     return (out[:, :, 0] - out[:, :, 1]) / (2.0 * SATURATION_STEP)

@@ -187,26 +187,36 @@ def incremental_inductances(psi_d: Any, psi_q: Any, motor: Any) -> tuple[Any, An
     return qq / det, -0.5 * (dq + qd) / det, dd / det
 
 
-def flux_of_currents(i_d: Any, i_q: Any, motor: Any, iterations: int = 12, bridge: Any = True) -> tuple[Any, Any]:
+def flux_of_currents(i_d: Any, i_q: Any, motor: Any, iterations: int = 12, bridge: Any = True,
+                     loop: bool = False) -> tuple[Any, Any]:
     """The flux linkages ``(psi_d, psi_q)`` (Wb) at which the law gives the currents ``i_d``, ``i_q`` (A).
 
     Newton's method from the linear machine's flux, ``iterations`` steps (unrolled: traceable and
     differentiable; the law is monotone, so it converges to machine precision well within 12 steps at
     currents where the inductance has fallen tenfold). Zero current gives ``(lambda_m, 0)`` exactly.
     ``bridge`` as in :func:`currents_of_flux` (a :class:`MagnetPoint` computed once saves each step's).
+    ``loop`` (static): the steps as a ``jax.lax.fori_loop``, the same arithmetic in a program with one
+    copy of the step (JAX arrays out).
     """
     if bridge is True:
         bridge = magnet_point(motor)
-    psi_d = motor.lambda_m + motor.Ld * i_d
-    psi_q = motor.Lq * i_q
-    for _ in range(iterations):
+
+    def newton(_, psi):
+        psi_d, psi_q = psi
         f_d, f_q = currents_of_flux(psi_d, psi_q, motor, bridge)
         r_d, r_q = f_d - i_d, f_q - i_q
         dd, dq, qd, qq = _jacobian(psi_d, psi_q, motor, bridge)
         det = dd * qq - dq * qd
-        psi_d = psi_d - (qq * r_d - dq * r_q) / det
-        psi_q = psi_q - (dd * r_q - qd * r_d) / det
-    return psi_d, psi_q
+        return psi_d - (qq * r_d - dq * r_q) / det, psi_q - (dd * r_q - qd * r_d) / det
+
+    psi = (motor.lambda_m + motor.Ld * i_d, motor.Lq * i_q)
+    if loop:
+        shape = jnp.broadcast_shapes(*(jnp.shape(x) for x in (*psi, i_d, i_q)))
+        return jax.lax.fori_loop(0, iterations, newton, tuple(jnp.broadcast_to(jnp.asarray(x, dtype=float), shape)
+                                                             for x in psi))
+    for step in range(iterations):
+        psi = newton(step, psi)
+    return psi
 
 
 def flux_torque(psi_d: Any, psi_q: Any, i_d: Any, i_q: Any, pole_pairs: Any) -> Any:
