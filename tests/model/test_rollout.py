@@ -210,9 +210,10 @@ def _rolled_cases() -> dict[str, tuple[dc.MotorParams, dc.Experiment, int]]:
 
 
 @pytest.mark.parametrize("case", list(_rolled_cases()))
-def test_rk4_stages_as_a_loop_give_the_same_states_and_tangents(case):
-    """``Experiment.rolled`` (the score tests' kernels) does the same arithmetic as the unrolled step: only
-    the compiled program differs, so the states and their forward-mode tangents agree to rounding."""
+def test_rolled_steps_give_the_same_states_and_tangents(case):
+    """``Experiment.rolled`` (the score tests' kernels: RK4's stages and the start flux's Newton steps as loops)
+    does the same arithmetic as the unrolled steps: only the compiled program differs, so the states and their
+    forward-mode tangents agree to rounding."""
     motor, experiment, keep = _rolled_cases()[case]
     assert not experiment.rolled
     theta = motor.vector(NAMES)
