@@ -25,6 +25,22 @@ def small_frame(n: int = 60) -> pd.DataFrame:
     return pd.concat([d, q], ignore_index=True)
 
 
+def test_csv_text_is_pandas_csv_to_the_byte(clean_default):
+    """The bench's CSV text (the synthetic bench's hash) is what pandas writes, with the optional columns, a
+    name that needs quoting, NaN, infinities and a negative zero."""
+    import dataclasses
+
+    bench = clean_default.add_noise(0.02, 5)
+    segs = list(bench.segments)
+    n0, n1 = segs[0].num_samples, segs[1].num_samples
+    segs[0] = dataclasses.replace(segs[0], name='a,"b"', inverter_off=True, temperature=np.full(n0, np.nan))
+    segs[1] = dataclasses.replace(segs[1], temperature=np.linspace(20.0, 21.0, n1), w_m=-np.zeros(n1),
+                                  theta_e=np.full(n1, np.inf))
+    for b in (bench, dataclasses.replace(bench, segments=tuple(segs))):
+        pandas_text = b.to_frame().to_csv(index=False, float_format="%.17g", lineterminator="\n")
+        assert b.to_csv_text() == pandas_text
+
+
 @pytest.mark.parametrize("suffix", [".csv", ".parquet", ".mat"])
 def test_save_and_load_round_trip_exactly(tmp_path, suffix, clean_default):
     bench = clean_default.add_noise(0.02, 5)

@@ -178,18 +178,18 @@ class BenchData:
         rng = np.random.default_rng(seed)
         return self.with_currents(self.currents + rng.normal(0.0, sigma, size=(self.num_samples, 2)))
 
-    def to_frame(self) -> pd.DataFrame:
-        """One row per sample with the bench-file columns."""
-        import pandas as pd
-
-        frames = []
+    def columns(self) -> dict[str, np.ndarray]:
+        """The bench-file columns, one entry per sample: text (``segment``), integers (``locked``,
+        ``inverter``) and floats (s, V, A, rad/s, rad, degC)."""
+        parts: list[dict[str, np.ndarray]] = []
         start = 0.0  # a continuing segment's clock runs on from the previous one's (one sample period later)
         for k, seg in enumerate(self.segments):
             prev = self.segments[k - 1] if k else None
             start = start + float(prev.t[-1]) + 1.0 / self.sample_rate if seg.continues and prev is not None else 0.0
+            n = seg.num_samples
             cols = {
-                "segment": seg.name,
-                "locked": int(seg.locked),
+                "segment": np.full(n, seg.name, dtype=object),
+                "locked": np.full(n, int(seg.locked), dtype=np.int64),
                 "t": seg.t + start,
                 "v_d": seg.voltages[:, 0],
                 "v_q": seg.voltages[:, 1],
@@ -197,16 +197,40 @@ class BenchData:
                 "i_q": seg.currents[:, 1],
             }
             if any(s.w_m is not None for s in self.segments):
-                cols["w_m"] = seg.w_m if seg.w_m is not None else np.zeros(seg.num_samples)
+                cols["w_m"] = seg.w_m if seg.w_m is not None else np.zeros(n)
             if any(s.theta_e is not None for s in self.segments):
-                cols["theta_e"] = seg.theta_e if seg.theta_e is not None else np.zeros(seg.num_samples)
+                cols["theta_e"] = seg.theta_e if seg.theta_e is not None else np.zeros(n)
             if any(s.inverter_off for s in self.segments):
-                cols["inverter"] = int(not seg.inverter_off)
+                cols["inverter"] = np.full(n, int(not seg.inverter_off), dtype=np.int64)
             if any(s.temperature is not None for s in self.segments):
-                cols["temperature"] = seg.temperature if seg.temperature is not None else np.full(seg.num_samples,
-                                                                                                  np.nan)
-            frames.append(pd.DataFrame(cols))
-        return pd.concat(frames, ignore_index=True)
+                cols["temperature"] = seg.temperature if seg.temperature is not None else np.full(n, np.nan)
+            parts.append(cols)
+        return {name: np.concatenate([np.asarray(cols[name]) for cols in parts]) for name in parts[0]}
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per sample with the bench-file columns (:meth:`columns`)."""
+        import pandas as pd
+
+        return pd.DataFrame(self.columns())
+
+    def to_csv_text(self) -> str:
+        """The bench file as CSV text, every float exact (``%.17g``), no pandas: what
+        ``to_frame().to_csv(index=False, float_format="%.17g", lineterminator="\\n")`` writes."""
+        import csv
+        import io
+
+        cols = self.columns()
+        text = []
+        for values in cols.values():
+            if values.dtype.kind == "f":
+                text.append(["" if math.isnan(v) else "%.17g" % v for v in values.tolist()])
+            else:
+                text.append([str(v) for v in values.tolist()])
+        out = io.StringIO()
+        writer = csv.writer(out, lineterminator="\n")
+        writer.writerow(cols)
+        writer.writerows(zip(*text))
+        return out.getvalue()
 
     def to_phase_frame(self, theta_e: np.ndarray) -> pd.DataFrame:
         """The run as phase quantities: ``i_a, i_b, i_c, v_a, v_b, v_c`` (A, V, phase-to-neutral)

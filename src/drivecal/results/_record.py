@@ -85,8 +85,7 @@ def bench_sha256(bench: BenchData) -> str:
     Used where there is no input file (the synthetic bench): the same data
     always gives the same hash.
     """
-    csv = bench.to_frame().to_csv(index=False, float_format="%.17g", lineterminator="\n")
-    return hashlib.sha256(csv.encode()).hexdigest()
+    return hashlib.sha256(bench.to_csv_text().encode()).hexdigest()
 
 
 def json_ready(x: Any) -> Any:
