@@ -219,6 +219,9 @@ def _print_phases(console: Console, breakdown: dict) -> None:
     for key in breakdown["now"]["phases_s"]:
         ph.add_row(key, f"{breakdown['baseline']['phases_s'].get(key, float('nan')):.2f}",
                    f"{breakdown['now']['phases_s'][key]:.2f}")
+    ph.add_row("(figures + HTML drawn in one process, no workers: their CPU work, not in the wall)",
+               f"{breakdown['baseline'].get('figures_here_s', float('nan')):.2f}",
+               f"{breakdown['now'].get('figures_here_s', float('nan')):.2f}")
     console.print(ph)
     kern = Table(title="Compile and trace seconds by kernel (now; baseline beside it), largest first", title_justify="left")
     kern.add_column("event", justify="left")
