@@ -214,8 +214,8 @@ class BenchData:
         return pd.DataFrame(self.columns())
 
     def to_csv_text(self) -> str:
-        """The bench file as CSV text, every float exact (``%.17g``), no pandas: what
-        ``to_frame().to_csv(index=False, float_format="%.17g", lineterminator="\\n")`` writes."""
+        """The bench file as CSV text (what :meth:`save` writes to a .csv), every float exact (``%.17g``), without
+        pandas: what ``to_frame().to_csv(index=False, float_format="%.17g", lineterminator="\\n")`` writes."""
         import csv
         import io
 
@@ -253,17 +253,16 @@ class BenchData:
         suffix = path.suffix.lower()
         if suffix not in TABLE_FORMATS:
             raise DataError(f"{path}: unknown bench-file format '{suffix}'; use one of {', '.join(TABLE_FORMATS)}.")
-        frame = self.to_frame()
         with atomic_path(path) as tmp:
             if suffix == ".csv":
-                frame.to_csv(tmp, index=False, float_format="%.17g")
+                tmp.write_bytes(self.to_csv_text().encode())
             elif suffix == ".parquet":
-                frame.to_parquet(tmp, index=False)
+                self.to_frame().to_parquet(tmp, index=False)
             else:
                 from scipy.io import savemat
 
-                columns = {c: frame[c].to_numpy() for c in frame.columns if c != "segment"}
-                columns["segment"] = np.array(frame["segment"].tolist(), dtype=object)
+                columns = self.columns()
+                columns["segment"] = columns.pop("segment")  # the names last, as the files written before
                 savemat(tmp, columns, oned_as="column", appendmat=False)
         return path
 
