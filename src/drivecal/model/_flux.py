@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._experiment import Experiment, chain_starts
+from ._scans import seeded
 from ._steps import _quadratic, _rk4, _substeps, _with_delay
 from ..physics import (MotorParams, bridge_error, currents_of_flux, flux_derivatives, flux_of_currents,
                        magnet_point, stable_dead_width)
@@ -77,7 +78,7 @@ def rollout_flux(motor: MotorParams, experiment: Experiment, keep: int, conducti
     inputs = (experiment.voltages, v_before, experiment.locked, chain_starts(experiment), start_flux,
               experiment.speed, experiment.speed_input, experiment.temperature, experiment.theta_e_start,
               jnp.asarray(conducting))
-    x_init = tuple(start_flux[0, i] for i in range(4))
+    x_init = seeded(tuple(start_flux[0, i] for i in range(4)), motor)
     _, states = jax.lax.scan(step, x_init, inputs)
     return states
 

@@ -31,7 +31,7 @@ import numpy as np
 from ._experiment import Experiment, chain_starts, in_rotor_frame
 from ._flux import rollout_flux
 from ._lowered_cache import call as cached_call
-from ._scans import _scan_affine_constant, _scan_linearised_tangents, _scan_states
+from ._scans import _scan_affine_constant, _scan_linearised_tangents, _scan_states, seeded
 from ._steps import _held, _quadratic, _rk4, _substeps, _with_delay
 from ..physics import (DqCoefficients, MotorParams, bridge_error, dq_coefficients, dq_derivatives_from,
                        stable_dead_width)
@@ -154,7 +154,7 @@ def _coast_segment(motor: MotorParams, experiment: Experiment, start: int, stop:
     def body(x, _):
         return _rk4(f, x, experiment.sample_period, (None, None, None), experiment.rolled), x
 
-    w, theta = jax.lax.scan(body, (w0, theta0), None, length=end - start)[1]
+    w, theta = jax.lax.scan(body, seeded((w0, theta0), motor), None, length=end - start)[1]
     w = jnp.where(experiment.speed_input[start:end] > 0, experiment.speed[start:end, 0], w)
     zeros = jnp.zeros_like(w) + 0.0 * (i_d + i_q)
     return (zeros, zeros, w, theta)[:keep]
@@ -334,7 +334,7 @@ def _rollout_sequential(motor: MotorParams, experiment: Experiment, keep: int) -
         experiment.theta_e_start,
         jnp.asarray(_conducting(experiment)),
     )
-    x_init = tuple(experiment.initial_state[0, i] for i in range(4))
+    x_init = seeded(tuple(experiment.initial_state[0, i] for i in range(4)), motor)
     _, states = jax.lax.scan(step, x_init, inputs)
     return states
 

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from ._experiment import Experiment, chain_starts
+from ._scans import seeded
 from ..physics import MotorParams
 
 
@@ -71,7 +72,7 @@ def _rk4_loop(f: Any, x: tuple, h: Any, stage_inputs: tuple) -> tuple:
                                                           s if given else None))
         return (k, tuple(t + weight * ki for t, ki in zip(total, k))), None
 
-    zeros = tuple(jnp.zeros_like(xi) for xi in xs)
+    zeros = seeded(tuple(jnp.zeros_like(xi) for xi in xs), xs)  # differentiated and batched as the state
     (_, total), _ = jax.lax.scan(stage, (zeros, zeros), (steps, weights, inputs))
     return tuple(xi + (h / 6.0) * t for xi, t in zip(xs, total))
 
