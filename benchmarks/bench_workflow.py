@@ -58,6 +58,9 @@ CASES = (
     ("drivecal fit examples/bench.csv", ["fit", str(EXAMPLES / "bench.csv")], "cold"),
     ("drivecal fit examples/bench.csv", ["fit", str(EXAMPLES / "bench.csv")], "warm"),
     ("drivecal fit examples/bench.csv --out DIR", ["fit", str(EXAMPLES / "bench.csv"), "--out", "{out}"], "warm"),
+    # a realistic bench: a switching inverter's delay and dead time, found by the effect selection
+    ("drivecal fit examples/inverter_bench.csv", ["fit", str(EXAMPLES / "inverter_bench.csv")], "cold"),
+    ("drivecal fit examples/inverter_bench.csv", ["fit", str(EXAMPLES / "inverter_bench.csv")], "warm"),
     ("drivecal simulate default_plan.toml", ["simulate", str(EXAMPLES / "default_plan.toml"), "--out",
                                              "{out}.csv"], "warm"),
     ("drivecal design default_plan.toml", ["design", str(EXAMPLES / "default_plan.toml")], "warm"),
