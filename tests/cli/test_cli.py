@@ -230,6 +230,31 @@ def test_the_program_ends_with_its_status_after_cleaning_up_without_teardown(arg
 
 
 
+# The program's garbage collector, seen from inside its command: its youngest generation's threshold.
+_GC_PROGRAM = """
+import gc, sys
+from drivecal.cli import _common
+run = _common._run
+_common._run = lambda argv: print(gc.get_threshold()[0], _common.YOUNG_GENERATION, flush=True) or run(argv)
+sys.argv = ["drivecal", "--version"]
+sys.exit(_common.main())
+"""
+
+
+def test_the_program_collects_garbage_less_often_a_caller_in_python_keeps_its_settings():
+    """The drivecal program's youngest generation holds ``YOUNG_GENERATION`` objects (tracing JAX programs pushed
+    Python's default into full collections); ``main(argv)`` called from Python leaves the caller's settings."""
+    import gc
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _GC_PROGRAM], capture_output=True, text=True, timeout=120)
+    threshold, wanted = proc.stdout.splitlines()[0].split()
+    assert proc.returncode == 0 and threshold == wanted and int(wanted) > 700
+    before = gc.get_threshold()
+    assert main(["--version"]) == 0 and gc.get_threshold() == before
+
+
 def test_fit_exit_status_is_the_verdicts(tmp_path, poor_bench, capsys):
     """0 only for 'calibrated'; partial, mismatch and not converged each their own status, none of them 2."""
     from drivecal.results import Status

@@ -201,21 +201,23 @@ def _rolled_cases() -> dict[str, tuple[dc.MotorParams, dc.Experiment, int]]:
     cases = {k: v for k, v in CASES.items() if k != "one-sample segment"}
     short = CASES["one-sample segment"][1]
     dead = dc.DEFAULT_MOTOR.replace(v_dead=0.3)
-    # model_experiment rolls a dead-time model's steps (its kernels' size): the unrolled one is the reference here
+    # model_experiment rolls a dead-time or saturating model's steps (its kernels' size): unrolled, the reference
     cases["dead time"] = (dead, dataclasses.replace(model_experiment(short, dead, ()), rolled=False), 4)
     late = dc.DEFAULT_MOTOR.replace(delay=0.4)
     cases["fractional delay"] = (late, model_experiment(CASES["default plan"][1], late, ("delay",)), 2)
     iron = dc.DEFAULT_MOTOR.replace(sat_d=0.3, sat_q=1.5, sat_dq=0.5, i_ref=20.0, exp_d=2.0, exp_q=2.0)
-    cases["saturating"] = (iron, model_experiment(short, iron, ()), 2)
+    cases["saturating"] = (iron, dataclasses.replace(model_experiment(short, iron, ()), rolled=False), 2)
     return cases
 
 
-def test_model_experiment_rolls_the_dead_time_model_only():
-    """The dead time's kernels are built with RK4's stages as loops (``Experiment.rolled``); a model
-    without it keeps the unrolled steps (the demo's and the base fit's numbers)."""
+def test_model_experiment_rolls_the_dead_time_and_saturating_models_only():
+    """The dead time's and the saturating law's kernels are built with RK4's stages as loops
+    (``Experiment.rolled``); a model without either keeps the unrolled steps (the demo's and the base fit's
+    numbers)."""
     short = CASES["one-sample segment"][1]
     assert model_experiment(short, dc.DEFAULT_MOTOR.replace(v_dead=0.3), ()).rolled
     assert model_experiment(short, dc.DEFAULT_MOTOR, ("v_dead",)).rolled
+    assert model_experiment(short, dc.DEFAULT_MOTOR, ("sat_d", "sat_q")).rolled
     assert not model_experiment(short, dc.DEFAULT_MOTOR, ("delay", "offset_d")).rolled
 
 

@@ -102,7 +102,7 @@ class Experiment(eqx.Module):
             same arithmetic (the results agree to rounding) in a program a fraction of the size, which
             compiles and loads several times faster. The score tests' kernels use it
             (``identify.sensitivity_jacobian(probing=True)``, ``saturation_columns``), and
-            :func:`model_experiment` switches it on with the dead time.
+            :func:`model_experiment` switches it on with the dead time and the saturating law.
     """
 
     voltages: jnp.ndarray
@@ -341,10 +341,11 @@ def model_experiment(experiment: Experiment, motor: MotorParams, names: tuple[st
     fractional = experiment.fractional_delay or "delay" in names or bool(np.any(delay != np.floor(delay)))
     bridge = experiment.bridge or used("sat_b") or used("sat_at_zero")
     saturating = experiment.saturating or bridge or any(used(n) for n in MAGNETIC)
-    # The dead time's RK4 steps as loops (``rolled``): XLA:CPU fuses an unrolled step with the dead-time error,
-    # and its tangents, into kernels that recompute the stages (examples/inverter_bench.csv: a cold fit 95 -> 43 s,
-    # warm 12.7 -> 5.4 s; its numbers within 1e-10 relative, the printed report the same).
-    rolled = experiment.rolled or dead_time
+    # The dead time's and the saturating law's RK4 steps as loops (``rolled``): XLA:CPU fuses an unrolled step,
+    # and its tangents, into kernels that recompute the stages. examples/inverter_bench.csv (dead time): a cold fit
+    # 95 -> 43 s, warm 12.7 -> 5.4 s; Hinkkanen's SyRM (saturating), a first fit 20 -> 6.3 s, warm the same
+    # (0.56 s). Their numbers within 1e-10 relative; a batch of saturating fits unrolls them again (fitting).
+    rolled = experiment.rolled or dead_time or saturating
     if (dead_time, phase_offsets, encoder, fractional, saturating, bridge, rolled) == (
             experiment.dead_time, experiment.phase_offsets, experiment.encoder_offset, experiment.fractional_delay,
             experiment.saturating, experiment.bridge, experiment.rolled):
