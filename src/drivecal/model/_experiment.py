@@ -343,7 +343,7 @@ def model_experiment(experiment: Experiment, motor: MotorParams, names: tuple[st
     saturating = experiment.saturating or bridge or any(used(n) for n in MAGNETIC)
     # The dead time's and the saturating law's RK4 steps as loops (``rolled``): XLA:CPU fuses an unrolled step,
     # and its tangents, into kernels that recompute the stages. examples/inverter_bench.csv (dead time): a cold fit
-    # 95 -> 43 s, warm 12.7 -> 5.4 s; Hinkkanen's SyRM (saturating), a first fit 20 -> 6.3 s, warm the same
+    # 95 -> 43-45 s, warm 12.7 -> 5.4 s; Hinkkanen's SyRM (saturating), a first fit 20 -> 6.3 s, warm the same
     # (0.56 s). Their numbers within 1e-10 relative; a batch of saturating fits unrolls them again (fitting).
     rolled = experiment.rolled or dead_time or saturating
     if (dead_time, phase_offsets, encoder, fractional, saturating, bridge, rolled) == (

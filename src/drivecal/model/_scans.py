@@ -21,11 +21,11 @@ def seeded(x0: tuple, *sources: Any) -> tuple:
     start.
 
     JAX's rules for a scan under ``jvp`` and under ``vmap`` find which carries have tangents, and which are
-    batched, by a fixpoint: they trace the loop body again for each round in which a carry turns out to
+    batched, by a fixpoint: they go through the loop body again for each round in which a carry turns out to
     depend on the parameters. A state started from the bench's initial values has no tangent until the first
-    step, so a forward-mode Jacobian (``jax.jacfwd``: ``vmap`` of ``jvp``) traced the body at least twice in
-    each rule (the score test's dead-time Jacobian on examples/bench.csv: 1.7 -> 0.8 s to trace, the same
-    numbers). A non-finite leaf adds nothing (``where``), so it cannot turn the state into NaN.
+    step, so a forward-mode Jacobian (``jax.jacfwd``: ``vmap`` of ``jvp``) went through every loop body at
+    least twice in each rule (the score test's dead-time Jacobian on examples/bench.csv: 1.7 -> 0.3 s to
+    trace, the same numbers). A non-finite leaf adds nothing (``where``), so it cannot turn the state into NaN.
     """
     leaves = [jnp.asarray(leaf) for leaf in jax.tree_util.tree_leaves(sources)]
     zero = sum(jnp.sum(0.0 * jnp.where(jnp.isfinite(leaf), leaf, 0.0)) for leaf in leaves
