@@ -161,7 +161,8 @@ def _solve_compiled(currents, start, prior, experiment, names, fit_names, option
         solved = jax.tree_util.tree_map(lambda a: a.reshape((batch,) + a.shape[2:]), jax.lax.map(tile, tiles))
     elif batch == 1:
         # One fit traced as one: under vmap every loop body of the solve is traced again by the batching
-        # rules (trace and lower 2.7 -> 1.3 s, compile 2.0 -> 1.8 s on examples/bench.csv; the same bits).
+        # rules (trace and lower 2.7 -> 1.3 s, compile 2.0 -> 1.8 s on examples/bench.csv, the same bits
+        # there; the demo's locked q-step fit moved by an ulp).
         one = _solve_one(currents[0], z0[0], prior, _first(experiment) if per_dataset else experiment,
                          fit_names, options, record)
         solved = jax.tree_util.tree_map(lambda a: a[None], one)
