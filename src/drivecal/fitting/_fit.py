@@ -30,7 +30,7 @@ from ..model import Experiment, model_experiment, with_experiment_delay
 from ..physics import ESTIMATED, MotorParams, from_search, parameter_values, to_search
 from ..results import Calibration
 from ._options import FitOptions
-from ._solver import _solve_batch, _solve_staged
+from ._solver import _first, _solve_batch, _solve_staged
 
 
 def _start_vector(initial: MotorParams | np.ndarray | None, prior: MotorParams, names: tuple[str, ...]) -> np.ndarray:
@@ -93,7 +93,7 @@ def fit_currents(
     prior = with_experiment_delay(prior, experiment)
     experiment = model_experiment(experiment, prior, names)
     # A batch of experiments shares one plan shape; judge it on the first (the structure is common).
-    first = jax.tree_util.tree_map(lambda a: a[0], experiment) if per_dataset else experiment
+    first = _first(experiment) if per_dataset else experiment
     ident = identifiability or assess_identifiability(first, prior, names=names)
     fit_names = ident.fit_names
     if not fit_names:
