@@ -36,7 +36,7 @@ from .._stats import chi2_sf
 from ..model import (Experiment, ahead_of_need, model_experiment, predicted_currents, saturation_columns,
                      side_by_side, with_experiment_delay)
 from ..identify import sensitivity_jacobian
-from ..physics import BRIDGE, EXPONENT_CANDIDATES, MAGNETIC, MotorParams, is_saturating
+from ..physics import BRIDGE, EXPONENT_CANDIDATES, MAGNETIC, MotorParams, is_saturating, parameter_values
 
 #: Family-wise false-alarm rate of the effect tests of one fit.
 ALPHA = 1e-3
@@ -223,7 +223,8 @@ def prepare_unmodelled_effects(motor: MotorParams, fit_names: tuple[str, ...], e
     if (plain or magnetic) and key not in _PREPARED:  # once per kernel in a process (a batch's flagged motors share)
         _PREPARED.add(key)
         # as a fit returns it: the fitted parameters as float64 arrays (a Python float would trace as a weak type)
-        motor = with_experiment_delay(motor.with_vector(tuple(fit_names), motor.vector(tuple(fit_names))), experiment)
+        motor = with_experiment_delay(motor.with_vector(tuple(fit_names), parameter_values(motor, tuple(fit_names), np)),
+                                       experiment)
         base = model_experiment(experiment, motor, tuple(fit_names))
         # What unmodelled_effects runs after the fit: kept kernels load side by side, new ones compile one at a
         # time (model.ahead_of_need), the largest first.

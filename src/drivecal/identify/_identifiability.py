@@ -26,7 +26,7 @@ import numpy as np
 from .._stats import t_ppf
 from ..errors import DrivecalError
 from ..model import Experiment, model_experiment, simulate_states
-from ..physics import ADDITIVE_SCALE, ESTIMATED, MECHANICAL, MotorParams, dq_to_abc, search_scale
+from ..physics import ADDITIVE_SCALE, ESTIMATED, MECHANICAL, MotorParams, dq_to_abc, parameter_values, search_scale
 from ._jacobian import jacobian_and_outputs, sensitivity_jacobian
 from ._magnetic_reasons import magnetic_reasons
 
@@ -412,7 +412,7 @@ def assess_identifiability(
             f"{', '.join(f'{n} = {float(getattr(motor, n)):.4g}' for n in names)} make the model blow up): "
             "check the motor file's values and units against the datasheet.")
     # d I / d ln(theta) (per additive step for offsets and dead time): comparable across parameters.
-    scale = np.asarray(search_scale(motor, names)[1])
+    scale = search_scale(motor, names, np)[1]
     jac_scaled = jac * scale
     sensitivity = np.linalg.norm(jac_scaled, axis=0)
     strongest = float(sensitivity.max()) if sensitivity.size else 0.0
@@ -450,7 +450,7 @@ def assess_identifiability(
         paired[idx] = np.max(np.abs(corr), axis=1) if len(idx) > 1 else 0.0
     t_factor = float(t_ppf(0.975, max(m - len(fit_names), 1)))
     weak = [n for n in report.weak_params if n in fit_names]
-    theta = np.asarray(motor.vector(names))
+    theta = parameter_values(motor, names, np)
     for i, n in enumerate(names):
         # A positive parameter whose predicted interval spans more than half its value is not pinned down.
         loose = n not in ADDITIVE_SCALE and t_factor * se[i] > WEAK_RELATIVE_CI * abs(theta[i])

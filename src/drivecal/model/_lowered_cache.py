@@ -60,6 +60,11 @@ _TRACED_LIBRARIES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "numpy"
 #: Marks a computation that cannot be exported: later processes go straight to the plain call.
 _UNKEPT = b"not kept"
 
+#: XLA:CPU's legacy fusion emitters, as a compile option (``call``'s ``compiler_options``): for kernels that run
+#: once or a few times per command, where compiling them is the cost (they compile with about half the CPU
+#: time). Not for every kernel: the Jaxonomy engine's simulations ran several times slower with them.
+LEGACY_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
+
 # key -> (jitted call of the loaded program, output tree), or None: use the plain call.
 _LOADED: dict[str, tuple[Callable, Any] | None] = {}
 #: One lock per key: threads that ask for the same program at once (a first fit's score-test kernels compiled

@@ -10,7 +10,6 @@ import dataclasses
 import math
 from typing import Any
 
-import jax.numpy as jnp
 import numpy as np
 
 from .._stats import t_ppf
@@ -127,7 +126,7 @@ class Calibration:
     @property
     def motor(self) -> MotorParams:
         """The calibrated motor: estimates, with the fixed parameters of the prior."""
-        return self.prior.with_vector(self.names, jnp.asarray(self.estimate))
+        return self.prior.with_vector(self.names, np.asarray(self.estimate, dtype=float))
 
     @property
     def correlation(self) -> np.ndarray:
