@@ -159,3 +159,25 @@ def test_a_flagged_motor_is_fitted_again_with_its_effects(tmp_path):
     assert not table["mismatch"][rows["inverter"]]
     assert abs(table["delay"][rows["inverter"]] - 1.0) < 3 * table["delay_se"][rows["inverter"]]
     assert np.isnan(table["delay"][rows["ideal"]])
+
+
+def test_a_chunk_s_solve_is_kept_for_the_next_batch_process(tmp_path):
+    """A fleet's chunk of 256 fits compiles one solve, which must be kept on disk with its executable (of at most
+    ``_setup.MAX_CACHED_OBJECTS`` object files): otherwise every later batch process compiles it again, ~5 s each
+    (with XLA's default emitters the chunk's solve had 401 object files, and a warm batch of 1000 motors took
+    11 s against 2.3 s)."""
+    import pickle
+    import subprocess
+    import sys
+    import zlib
+
+    fleet.synthetic_fleet(tmp_path / "in", 256, seed=3)
+    env = {**os.environ, "DRIVECAL_JAX_CACHE": "1", "DRIVECAL_JAX_CACHE_DIR": str(tmp_path / "cache")}
+    done = subprocess.run([sys.executable, "-c", "import sys; from drivecal.cli import main; sys.exit(main())",
+                           "batch", str(tmp_path / "in"), "--out", str(tmp_path / "results.parquet"), "--workers", "1"],
+                          env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout + done.stderr
+    entries = [zlib.decompress(p.read_bytes()) for p in (tmp_path / "cache").rglob("solve_batch-*.pkl")]
+    chunk = [e for e in map(pickle.loads, entries) if e[0].in_avals[0].shape[0] == 256]
+    assert chunk, "no solve of a chunk of 256 fits was kept"
+    assert all(kept is not None for _, _, kept, _ in chunk), "the chunk's solve was kept without its executable"

@@ -128,6 +128,22 @@ def test_a_program_jitted_with_compiler_options_is_kept_and_compiled_with_them(s
         np.testing.assert_array_equal(out["a"], plain["a"])
 
 
+def test_with_caching_off_the_plain_call_is_compiled_with_the_options(monkeypatch):
+    """Caching off (as the suite runs), a call with XLA options jits the function it wraps with them, once:
+    the numbers are those of the kept program (a batch's solve: XLA's legacy emitters)."""
+    options = {"xla_cpu_use_fusion_emitters": False}
+    monkeypatch.setattr(traced, "directory", lambda: None)
+    monkeypatch.setattr(traced, "_PLAIN", {})
+    x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
+    expected = jax.jit(_f.__wrapped__, static_argnames=("scale",), compiler_options=options)(x, y, scale=2.5)
+    for _ in range(2):
+        out = traced.call(_f, "f", x, y, scale=2.5, compiler_options=options)
+        np.testing.assert_array_equal(out["a"], expected["a"])
+    assert list(traced._PLAIN) == [(_f, tuple(options.items()), ("scale",))]
+    traced.call(_f, "f", x, y, scale=2.5)  # no options: the function as it is
+    assert len(traced._PLAIN) == 1
+
+
 def test_key_separates_shapes_statics_and_dtypes(store):
     x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
     traced.call(_f, "f", x, y, scale=2.5)

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..model import cached_call, join_current_parts
+from ..model import LEGACY_EMITTERS, cached_call, join_current_parts
 from ..physics import from_search, to_search
 from ..results import solver_code
 from ._initial import start_from_data
@@ -197,8 +197,11 @@ def _solve_batch(currents, start, prior, experiment, names, fit_names, options, 
     rolled = experiment.rolled and (linearised or experiment.dead_time)
     if (experiment.linearised_tangents, experiment.rolled) != (linearised, rolled):  # replace(): ~0.1 ms of a fit
         experiment = dataclasses.replace(experiment, linearised_tangents=linearised, rolled=rolled)
+    # A batch's solve with XLA's legacy emitters: 235 object files against 401 for a fleet's chunk of 256 (a
+    # kernel of more than _setup.MAX_CACHED_OBJECTS is not kept, and every batch process compiled it again).
     fields = cached_call(_solve_fields, "solve_batch", currents, start, prior, experiment, names=names,
-                         fit_names=fit_names, options=options, record=record)
+                         fit_names=fit_names, options=options, record=record,
+                         compiler_options=LEGACY_EMITTERS if currents.shape[0] > 1 else None)
     return _Solved(*fields)
 
 

@@ -65,6 +65,8 @@ _UNKEPT = b"not kept"
 #: time). Not for every kernel: the Jaxonomy engine's simulations ran several times slower with them.
 LEGACY_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
 
+#: The plain calls jitted with compile options (:func:`_plain`).
+_PLAIN: dict[tuple, Callable] = {}
 # key -> (jitted call of the loaded program, output tree), or None: use the plain call.
 _LOADED: dict[str, tuple[Callable, Any] | None] = {}
 #: One lock per key: threads that ask for the same program at once (a first fit's score-test kernels compiled
@@ -426,6 +428,18 @@ def _load_or_export(key: str, path: Path, export: Callable[[Path], Any]) -> None
             _LOADED[key] = export(path)
 
 
+def _plain(fn: Callable, options: dict | None, static: dict[str, Any]) -> Callable:
+    """``fn`` as the plain call: jitted with the XLA ``options`` where there are some (one jit per function,
+    options and static names), so that the numbers are those of the kept program with or without the cache."""
+    if not options:
+        return fn
+    key = (fn, tuple(sorted(options.items())), tuple(sorted(static)))
+    if key not in _PLAIN:
+        _PLAIN[key] = jax.jit(getattr(fn, "__wrapped__", fn), static_argnames=tuple(sorted(static)),
+                              compiler_options=options)
+    return _PLAIN[key]
+
+
 def call(fn: Callable, name: str, *args: Any, compiler_options: dict | None = None, **static: Any) -> Any:
     """``fn(*args, **static)``, traced once per machine rather than once per process.
 
@@ -434,8 +448,9 @@ def call(fn: Callable, name: str, *args: Any, compiler_options: dict | None = No
             that returns arrays in tuples, lists or dicts (not in custom pytree nodes).
         name: names ``fn`` in the cache key (unique per function).
         args: the traced arguments.
-        compiler_options: XLA options ``fn`` is jitted with (``jax.jit(..., compiler_options=...)``): the
-            exported program does not carry them, so the kept one is compiled with them again.
+        compiler_options: XLA options ``fn`` is compiled with (``jax.jit(..., compiler_options=...)``): the
+            exported program does not carry them, so the kept one is compiled with them again, and the
+            plain call (caching off) jits the function ``fn`` wraps with them.
         static: arguments fixed at trace time; their ``repr`` is part of the key.
 
     Where ``fn`` is a jitted function, the function it wraps (``fn.__wrapped__``) is what is traced and kept:
@@ -450,25 +465,25 @@ def call(fn: Callable, name: str, *args: Any, compiler_options: dict | None = No
     args = jax.tree_util.tree_unflatten(treedef, leaves)
     folder = directory()
     if folder is None:
-        return fn(*args, **static)
+        return _plain(fn, compiler_options, static)(*args, **static)
     try:
         key = _key(name, leaves, treedef,
                    {**static, " compiler_options": tuple(sorted(compiler_options.items()))} if compiler_options
                    else static)
     except Exception as exc:  # e.g. a leaf JAX cannot type: not a traced call at all
         logger.debug("drivecal: no cache key for %s (%s)", name, exc)
-        return fn(*args, **static)
+        return _plain(fn, compiler_options, static)(*args, **static)
     if key not in _LOADED:
         _load_or_export(key, folder / f"{name}-{key[:32]}.pkl",
                         lambda path: _export(fn, name, leaves, treedef, static, path, compiler_options))
     entry = _LOADED[key]
     if entry is None:
-        return fn(*args, **static)
+        return _plain(fn, compiler_options, static)(*args, **static)
     run, out_tree = entry
     try:
         out = run(*leaves)
     except Exception as exc:  # the kept program does not fit after all: never use it again here
         logger.debug("drivecal: cached %s failed (%s); tracing it", name, exc)
         _LOADED[key] = None
-        return fn(*args, **static)
+        return _plain(fn, compiler_options, static)(*args, **static)
     return jax.tree_util.tree_unflatten(out_tree, out)
