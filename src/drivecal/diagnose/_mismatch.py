@@ -223,8 +223,8 @@ def prepare_unmodelled_effects(motor: MotorParams, fit_names: tuple[str, ...], e
     if (plain or magnetic) and key not in _PREPARED:  # once per kernel in a process (a batch's flagged motors share)
         _PREPARED.add(key)
         # as a fit returns it: the fitted parameters as float64 arrays (a Python float would trace as a weak type)
-        motor = with_experiment_delay(motor.with_vector(tuple(fit_names), parameter_values(motor, tuple(fit_names), np)),
-                                       experiment)
+        fitted = parameter_values(motor, tuple(fit_names), np)  # on the host: no JAX operation dispatched
+        motor = with_experiment_delay(motor.with_vector(tuple(fit_names), fitted), experiment)
         base = model_experiment(experiment, motor, tuple(fit_names))
         # What unmodelled_effects runs after the fit: kept kernels load side by side, new ones compile one at a
         # time (model.ahead_of_need), the largest first.
