@@ -35,7 +35,7 @@ def jacobian_and_outputs(motor: MotorParams, experiment: Experiment, names: tupl
     """:func:`sensitivity_jacobian` and the predicted outputs it is the derivative of (2M or 2M + K rows), in one pass."""
     if probing:  # RK4's stages as a loop: the dead time's program a fifth of the size (Experiment.rolled)
         experiment = dataclasses.replace(experiment, rolled=True)
-        return cached_call(_probe_jacobian, "probe_jacobian", motor, experiment, names=tuple(names),
+        return cached_call(_sensitivity_jacobian, "probe_jacobian", motor, experiment, names=tuple(names),
                            compiler_options=PROBE_COMPILER_OPTIONS)
     return cached_call(_sensitivity_jacobian, "sensitivity_jacobian", motor, experiment, names=tuple(names))
 
@@ -68,5 +68,5 @@ def _jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...]
 #: warm one as fast (each kernel runs once), its score statistics moved in the 15th digit.
 PROBE_COMPILER_OPTIONS = {**LEGACY_EMITTERS, "xla_backend_optimization_level": 0}
 
+#: Both Jacobians' function; ``cached_call`` compiles the score tests' with their options, cache or no cache.
 _sensitivity_jacobian = jax.jit(_jacobian, static_argnames=("names",))
-_probe_jacobian = jax.jit(_jacobian, static_argnames=("names",), compiler_options=PROBE_COMPILER_OPTIONS)

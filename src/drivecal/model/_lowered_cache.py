@@ -62,11 +62,13 @@ _UNKEPT = b"not kept"
 
 #: XLA:CPU's legacy fusion emitters, as a compile option (``call``'s ``compiler_options``): for kernels that run
 #: once or a few times per command, where compiling them is the cost (they compile with about half the CPU
-#: time). Not for every kernel: the Jaxonomy engine's simulations ran several times slower with them.
+#: time), and for a batch's solve (fewer object files: kept on disk). Not for every kernel: the Jaxonomy
+#: engine's simulations ran several times slower with them.
 LEGACY_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
 
 #: The plain calls jitted with compile options (:func:`_plain`).
 _PLAIN: dict[tuple, Callable] = {}
+
 # key -> (jitted call of the loaded program, output tree), or None: use the plain call.
 _LOADED: dict[str, tuple[Callable, Any] | None] = {}
 #: One lock per key: threads that ask for the same program at once (a first fit's score-test kernels compiled

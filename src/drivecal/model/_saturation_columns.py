@@ -8,7 +8,6 @@ rollout, all in one compiled, batched program.
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import jax
 import jax.numpy as jnp
@@ -55,6 +54,6 @@ def saturation_columns(motor: MotorParams, experiment: Experiment) -> np.ndarray
     return (out[:, :, 0] - out[:, :, 1]) / (2.0 * SATURATION_STEP)
 
 
-@functools.partial(jax.jit, compiler_options=LEGACY_EMITTERS)
+@jax.jit  # compiled with LEGACY_EMITTERS by cached_call, cache or no cache
 def _batched_currents(motors: MotorParams, experiment: Experiment) -> jnp.ndarray:
     return jax.vmap(predict_currents, in_axes=(0, None))(motors, experiment)
