@@ -66,6 +66,14 @@ _UNKEPT = b"not kept"
 #: engine's simulations ran several times slower with them.
 LEGACY_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
 
+#: XLA:CPU's backend (LLVM) at optimisation level 0: for a program that runs once or a few times in a command
+#: and for milliseconds at most (a single fit's solve and predicted currents without the dead time's rollout,
+#: the score tests' Jacobians). Compiled in about half the time; the bits may differ in the last places
+#: (examples/bench.csv's fit --json: 1e-11 relative at most, no printed digit). A cold fit of
+#: examples/bench.csv 9.5 -> 8.5 s, the demo's 20.0 -> 18.7 s; the inverter bench's dead-time solves
+#: keep level 2 (at level 0 its warm fit took 0.5 s longer).
+RUN_ONCE = {"xla_backend_optimization_level": 0}
+
 #: The plain calls jitted with compile options (:func:`_plain`).
 _PLAIN: dict[tuple, Callable] = {}
 
