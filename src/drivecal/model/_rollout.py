@@ -229,6 +229,11 @@ def _constant_linear_part(experiment: Experiment, start: int, stop: int) -> bool
     return not experiment.thermal and (start, stop, "locked") in (experiment.segments or ())
 
 
+# The steps are jitted functions: inside a trace, a jitted function is traced once per argument shape and
+# statics, and every later call (the next segment's scan, the linearised tangents' sweeps, the next kernel's
+# trace in the same process) reuses that program. A cold fit of examples/bench.csv ~0.5 s less tracing; the
+# same bits (XLA inlines the calls before it optimises). dt may be traced: not static.
+@functools.partial(jax.jit, static_argnums=(1, 2, 3))
 def _linear_step(dt: Any, thermal: bool, fractional: bool, loop: bool, params: Any, x: tuple, u: tuple) -> tuple:
     """One sample period of the currents ``x = (i_d, i_q)`` with the speed at the stages given (:func:`_held`).
 
@@ -273,6 +278,7 @@ def _free_segment(motor: MotorParams, experiment: Experiment, start: int, stop: 
     return tuple(states[:keep])
 
 
+@functools.partial(jax.jit, static_argnums=(1, 2, 3))  # as _linear_step
 def _free_step(dt: Any, thermal: bool, fractional: bool, loop: bool, params: Any, x: tuple, u: tuple) -> tuple:
     """One sample period of ``x = (i_d, i_q, w_m[, theta_m])``; ``u = (v_d, v_q[, v_d_before, v_q_before][, R/Ld, R/Lq])``."""
     c, before, u = _step_parts(params, u, fractional)

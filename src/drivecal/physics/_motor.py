@@ -387,9 +387,9 @@ def dq_derivatives_from(coefficients: DqCoefficients, state: Any, v_dq: Any, loc
 
 
 # Inside a trace, a jitted function is traced once per argument shape and reused: a rollout calls this at
-# every RK4 stage of every segment (84 times in a fit of examples/bench.csv), and each call's transforms
-# (jvp, vmap) then apply to one cached program. A cold fit of examples/bench.csv: 0.5-1 s less tracing,
-# the same bits (XLA inlines the call before it optimises).
+# every RK4 stage of every segment (84 times in a fit of examples/bench.csv, in every kernel), and each
+# call's transforms (jvp, vmap) then apply to one cached program. A cold fit of examples/bench.csv: 0.5-1 s
+# less tracing, the same bits (XLA inlines the call before it optimises).
 @jax.jit
 def _dq_derivatives(c: DqCoefficients, state: tuple, v_dq: tuple, locked: Any) -> tuple:
     i_d, i_q, w_m = state[0], state[1], state[2]
