@@ -38,6 +38,7 @@ from ..physics import (DqCoefficients, MotorParams, bridge_error, dq_coefficient
 from ..physics import encoder_frame, resistance_at, sensor_offsets, with_dq_offsets
 
 
+@functools.partial(jax.jit, static_argnames=("dead_time", "rolled"))  # as _linear_step
 def rk4_step(
     state: tuple,
     v_dq: Any,
