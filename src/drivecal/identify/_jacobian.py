@@ -37,7 +37,8 @@ def jacobian_and_outputs(motor: MotorParams, experiment: Experiment, names: tupl
         experiment = dataclasses.replace(experiment, rolled=True)
         return cached_call(_sensitivity_jacobian, "probe_jacobian", motor, experiment, names=tuple(names),
                            compiler_options=PROBE_COMPILER_OPTIONS)
-    return cached_call(_sensitivity_jacobian, "sensitivity_jacobian", motor, experiment, names=tuple(names))
+    return cached_call(_sensitivity_jacobian, "sensitivity_jacobian", motor, experiment, names=tuple(names),
+                       compiler_options=None if experiment.dead_time else RUN_ONCE)
 
 
 def _jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...]) -> tuple[jnp.ndarray, jnp.ndarray]:

@@ -67,11 +67,13 @@ _UNKEPT = b"not kept"
 LEGACY_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
 
 #: XLA:CPU's backend (LLVM) at optimisation level 0: for a program that runs once or a few times in a command
-#: and for milliseconds at most (a single fit's solve and predicted currents without the dead time's rollout,
-#: the score tests' Jacobians). Compiled in about half the time; the bits may differ in the last places
-#: (examples/bench.csv's fit --json: 1e-11 relative at most, no printed digit). A cold fit of
-#: examples/bench.csv 9.5 -> 8.5 s, the demo's 20.0 -> 18.7 s; the inverter bench's dead-time solves
-#: keep level 2 (at level 0 its warm fit took 0.5 s longer).
+#: and for milliseconds at most (a single fit's solve, the sensitivity Jacobian and the predicted currents
+#: without the dead time's rollout, the score tests' Jacobians). Compiled in about half the time (the
+#: Jacobian of examples/bench.csv: 1.16 -> 0.56 s; it then runs in 3.2 ms against 0.4 ms); the bits may
+#: differ in the last places (examples/bench.csv's fit --json: 1e-11 relative at most, no printed digit).
+#: A cold fit of examples/bench.csv 9.5 -> 8.5 s, the demo's 20.0 -> 18.7 s with the solve and the
+#: predicted currents, the demo's 15.6 -> 14.8 s with the Jacobian too (A/B). The dead-time model's
+#: programs keep level 2 (the inverter bench's warm fit took 0.5 s longer with its solves at level 0).
 RUN_ONCE = {"xla_backend_optimization_level": 0}
 
 #: The plain calls jitted with compile options (:func:`_plain`).
