@@ -13,8 +13,8 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from ..model import (LEGACY_EMITTERS, RUN_ONCE, Experiment, cached_call, join_current_parts, predict_current_parts,
-                     predict_currents)
+from ..model import (LEGACY_EMITTERS, RUN_ONCE, Experiment, cached_call, join_current_parts,
+                     predict_current_parts, predict_currents)
 from ..physics import ESTIMATED, MotorParams
 
 

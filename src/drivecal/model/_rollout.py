@@ -432,7 +432,8 @@ def predicted_currents(motor: MotorParams, experiment: Experiment) -> np.ndarray
     trace is kept on disk (``cached_call``).
     """
     options = None if experiment.dead_time else RUN_ONCE  # run once: compiled at LLVM's level 0
-    return np.asarray(cached_call(_predict_compiled, "predict_currents", motor, experiment, compiler_options=options))
+    return np.asarray(cached_call(_predict_compiled, "predict_currents", motor, experiment,
+                                  compiler_options=options))
 
 
 _predict_compiled = jax.jit(predict_currents)
