@@ -38,7 +38,13 @@ from ..physics import (DqCoefficients, MotorParams, bridge_error, dq_coefficient
 from ..physics import encoder_frame, resistance_at, sensor_offsets, with_dq_offsets
 
 
-@functools.partial(jax.jit, static_argnames=("dead_time", "rolled"))  # as _linear_step
+# A jitted function: inside a trace, JAX traces it once per argument shape and statics, and every later call
+# (the next sub-step's, the next kernel's in the same process) reuses that program. The dead-time model's
+# kernels of examples/inverter_bench.csv (its solves, selection fits and score tests) call it in each: a
+# cold fit 36.7 -> 33.8 s, the same bits. (The segments' steps and the dq equations jitted alike saved
+# ~1 s of a cold fit of examples/bench.csv, bit for bit, but moved the D-optimal search of `design
+# --optimize` along its flat valley: taken back.)
+@functools.partial(jax.jit, static_argnames=("dead_time", "rolled"))
 def rk4_step(
     state: tuple,
     v_dq: Any,
@@ -230,11 +236,6 @@ def _constant_linear_part(experiment: Experiment, start: int, stop: int) -> bool
     return not experiment.thermal and (start, stop, "locked") in (experiment.segments or ())
 
 
-# The steps are jitted functions: inside a trace, a jitted function is traced once per argument shape and
-# statics, and every later call (the next segment's scan, the linearised tangents' sweeps, the next kernel's
-# trace in the same process) reuses that program. A cold fit of examples/bench.csv ~0.5 s less tracing; the
-# same bits (XLA inlines the calls before it optimises). dt may be traced: not static.
-@functools.partial(jax.jit, static_argnums=(1, 2, 3))
 def _linear_step(dt: Any, thermal: bool, fractional: bool, loop: bool, params: Any, x: tuple, u: tuple) -> tuple:
     """One sample period of the currents ``x = (i_d, i_q)`` with the speed at the stages given (:func:`_held`).
 
@@ -279,7 +280,6 @@ def _free_segment(motor: MotorParams, experiment: Experiment, start: int, stop: 
     return tuple(states[:keep])
 
 
-@functools.partial(jax.jit, static_argnums=(1, 2, 3))  # as _linear_step
 def _free_step(dt: Any, thermal: bool, fractional: bool, loop: bool, params: Any, x: tuple, u: tuple) -> tuple:
     """One sample period of ``x = (i_d, i_q, w_m[, theta_m])``; ``u = (v_d, v_q[, v_d_before, v_q_before][, R/Ld, R/Lq])``."""
     c, before, u = _step_parts(params, u, fractional)

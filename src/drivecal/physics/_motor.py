@@ -23,7 +23,6 @@ import dataclasses
 from typing import Any, NamedTuple
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -383,15 +382,7 @@ def dq_derivatives_from(coefficients: DqCoefficients, state: Any, v_dq: Any, loc
     The equations of the module docstring, divided through by Ld, Lq and J.
     Arguments and result as :func:`dq_derivatives`.
     """
-    return _dq_derivatives(coefficients, (state[0], state[1], state[2]), (v_dq[0], v_dq[1]), locked)
-
-
-# Inside a trace, a jitted function is traced once per argument shape and reused: a rollout calls this at
-# every RK4 stage of every segment (84 times in a fit of examples/bench.csv, in every kernel), and each
-# call's transforms (jvp, vmap) then apply to one cached program. A cold fit of examples/bench.csv: 0.5-1 s
-# less tracing, the same bits (XLA inlines the call before it optimises).
-@jax.jit
-def _dq_derivatives(c: DqCoefficients, state: tuple, v_dq: tuple, locked: Any) -> tuple:
+    c = coefficients
     i_d, i_q, w_m = state[0], state[1], state[2]
     v_d, v_q = v_dq[0], v_dq[1]
     di_d = c.inv_ld * v_d - c.r_ld * i_d + c.wq_ld * w_m * i_q
