@@ -246,8 +246,8 @@ def test_the_sequential_step_is_traced_once_per_shape_and_reused_with_the_same_n
     traced = []
     rk4 = _rollout._rk4
     monkeypatch.setattr(_rollout, "_rk4", lambda *args, **kwargs: traced.append(1) or rk4(*args, **kwargs))
-    # Lengths no other test uses, so that no earlier trace of the process serves them; the dead time's model
-    # keeps the one sequential scan.
+    _rollout.rk4_step.clear_cache()  # an earlier test's trace (any dead-time rollout: scalar steps) would serve
+    # The dead time's model keeps the one sequential scan.
     plain = dc.Experiment.from_segments([np.tile([7.0, 0.0], (37, 1)), np.tile([1.0, 11.0], (53, 1))],
                                         [True, False], 1.0 / FS)
     experiment = model_experiment(plain, dc.DEFAULT_MOTOR.replace(v_dead=0.4), ("v_dead",))
