@@ -30,7 +30,8 @@ from ..model import Experiment, model_experiment, with_experiment_delay
 from ..physics import ESTIMATED, MotorParams, from_search, parameter_values, to_search
 from ..results import Calibration
 from ._options import FitOptions
-from ._solver import _first, _solve_batch, _solve_staged
+from ._host_lm import solve_on_host
+from ._solver import _Solved, _first, _solve_batch, _solve_staged
 
 
 def _start_vector(initial: MotorParams | np.ndarray | None, prior: MotorParams, names: tuple[str, ...]) -> np.ndarray:
@@ -112,9 +113,12 @@ def fit_currents(
     history = None
     if batched:
         solved = _solve_staged(cur, start, prior, experiment, tuple(names), fit_names, options)
-    else:
+    elif experiment.dead_time:  # its compiled solve: the sequential rollout's Jacobian is faster there (_host_lm)
         solved = jax.device_get(_solve_batch(cur, start, prior, experiment, tuple(names), fit_names,
                                              dataclasses.replace(options, first_pass_steps=None), record=True))
+    else:  # stepped from the host with the identifiability check's kernel: no solve program to compile or load
+        solved = _Solved(**solve_on_host(cur, start, prior, experiment, tuple(names), fit_names, options))
+    if not batched:
         z0 = to_search(prior, fit_names, solved.initial[:, fit_idx])
         steps = [z0[0]] + list(np.asarray(solved.accepted)[0, : int(solved.iterations[0])])
         steps = [steps[0]] + [b for a, b in zip(steps, steps[1:]) if not np.array_equal(a, b)]

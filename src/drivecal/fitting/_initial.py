@@ -26,9 +26,12 @@ the fit (``fitting._fit``) is what the calibration reports.
 
 from __future__ import annotations
 
+import functools
+from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..model import cached_call
 from ..model import Experiment
@@ -47,64 +50,70 @@ def _rk4_factor(s):
     return 1.0 + s * (1.0 + s * (0.5 + s * (1.0 / 6.0 + s / 24.0)))
 
 
-def _rate_from_factor(a):
+def _rate_from_factor(a, xp=jnp):
     """``s = -R h / L`` with ``_rk4_factor(s) == a`` (0 < a < 1): log(a), polished by Newton."""
-    s = jnp.log(jnp.clip(a, 1e-12, 1.0 - 1e-15))
+    s = xp.log(xp.clip(a, 1e-12, 1.0 - 1e-15))
     for _ in range(3):
         ds = 1.0 + s * (1.0 + s * (0.5 + s / 6.0))
         s = s - (_rk4_factor(s) - a) / ds
     return s
 
 
-def _instrumented_lsq(z1, z2, x1, x2, y, w):
+def _instrumented_lsq(z1, z2, x1, x2, y, w, xp=jnp):
     """Solve ``sum w z (x . theta - y) = 0`` for theta (2,): instrumental-variable least squares."""
-    a11, a12 = jnp.sum(w * z1 * x1), jnp.sum(w * z1 * x2)
-    a21, a22 = jnp.sum(w * z2 * x1), jnp.sum(w * z2 * x2)
-    c1, c2 = jnp.sum(w * z1 * y), jnp.sum(w * z2 * y)
+    a11, a12 = xp.sum(w * z1 * x1), xp.sum(w * z1 * x2)
+    a21, a22 = xp.sum(w * z2 * x1), xp.sum(w * z2 * x2)
+    c1, c2 = xp.sum(w * z1 * y), xp.sum(w * z2 * y)
     det = a11 * a22 - a12 * a21
     return (a22 * c1 - a12 * c2) / det, (a11 * c2 - a21 * c1) / det
 
 
-def _affine_prefix(a, b):
+def _affine_prefix(a, b, xp=jnp):
     """``s[k] = a[k] * s[k-1] + b[k]`` from ``s[-1] = 0`` for all k at once (log-depth scan)."""
     def combine(first, second):
         return second[0] * first[0], second[0] * first[1] + second[1]
 
-    return jax.lax.associative_scan(combine, (a, b))[1]
+    if xp is jnp:
+        return jax.lax.associative_scan(combine, (a, b))[1]
+    s, out = 0.0, np.empty(len(a))  # on the host: sample by sample (~1 ms for 1 400 samples)
+    for k, (a_k, b_k) in enumerate(zip(a.tolist(), b.tolist())):
+        s = a_k * s + b_k
+        out[k] = s
+    return out
 
 
-def _start_one(experiment: Experiment, currents, prior: MotorParams):
+def _start_one(experiment: Experiment, currents, prior: MotorParams, xp=jnp):
     """R, Ld, Lq, lambda_m (SI) from one dataset; NaN where the data does not tell."""
     h = experiment.sample_period
     i_d, i_q = currents[:, 0], currents[:, 1]
     v_d, v_q = experiment.voltages[:, 0], experiment.voltages[:, 1]
     start = experiment.segment_start
     # Sample pairs (k, k+1) inside one segment, and triples (k-1, k, k+1) for the instrument.
-    pair = jnp.concatenate([~start[1:], jnp.array([False])])
+    pair = xp.concatenate([~start[1:], xp.array([False])])
     triple = pair & ~start
     locked = experiment.locked > 0.5
 
     def shift(x, by):
-        return jnp.roll(x, -by)
+        return xp.roll(x, -by)
 
     # Locked rotor, one axis at a time: i[k+1] = a i[k] + b v[k].
     # The per-sample R follows the winding temperature; the regression sees its mean.
-    warm = 1.0 + prior.alpha_R * jnp.where(jnp.isnan(experiment.temperature), 0.0,
+    warm = 1.0 + prior.alpha_R * xp.where(xp.isnan(experiment.temperature), 0.0,
                                            experiment.temperature - prior.T_ref)
     axes = []
     for i, v in ((i_d, v_d), (i_q, v_q)):
         w = (triple & locked).astype(float)
-        a, b = _instrumented_lsq(shift(i, -1), v, i, v, shift(i, 1), w)
+        a, b = _instrumented_lsq(shift(i, -1), v, i, v, shift(i, 1), w, xp)
         r_eff = (1.0 - a) / b
-        weight = jnp.sum(w * v**2)
-        r_axis = r_eff / (jnp.sum(w * v**2 * warm) / weight)
-        inductance = -r_eff * h / _rate_from_factor(a)
+        weight = xp.sum(w * v**2)
+        r_axis = r_eff / (xp.sum(w * v**2 * warm) / weight)
+        inductance = -r_eff * h / _rate_from_factor(a, xp)
         ok = (weight > 0) & (a > 0) & (a < 1) & (b > 0)
-        axes.append((jnp.where(ok, r_axis, jnp.nan), jnp.where(ok, inductance, jnp.nan), jnp.where(ok, weight, 0.0)))
+        axes.append((xp.where(ok, r_axis, xp.nan), xp.where(ok, inductance, xp.nan), xp.where(ok, weight, 0.0)))
     (r_d, l_d, w_d), (r_q, l_q, w_q) = axes
-    R = (jnp.nan_to_num(r_d) * w_d + jnp.nan_to_num(r_q) * w_q) / (w_d + w_q)
-    R = jnp.where(w_d + w_q > 0, R, jnp.nan)
-    R_use, Ld_use, Lq_use = (jnp.where(jnp.isfinite(x), x, p) for x, p in ((R, prior.R), (l_d, prior.Ld),
+    R = (xp.nan_to_num(r_d) * w_d + xp.nan_to_num(r_q) * w_q) / (w_d + w_q)
+    R = xp.where(w_d + w_q > 0, R, xp.nan)
+    R_use, Ld_use, Lq_use = (xp.where(xp.isfinite(x), x, p) for x, p in ((R, prior.R), (l_d, prior.Ld),
                                                                              (l_q, prior.Lq)))
 
     # Free rotor: the q equation over each sample, trapezoidal in the currents.
@@ -114,18 +123,18 @@ def _start_one(experiment: Experiment, currents, prior: MotorParams):
     # Speed: measured (w = c), or from the mechanical equation driven by the recorded
     # currents, w = lambda_m * u + c, integrated sample by sample from the segment's start.
     p = prior.pole_pairs
-    decay = jnp.exp(-h * prior.B / prior.J)
-    reset = jnp.where(start, 0.0, decay)
+    decay = xp.exp(-h * prior.B / prior.J)
+    reset = xp.where(start, 0.0, decay)
     drive_u = 1.5 * p * i_q_mid * h / prior.J
     drive_c = (1.5 * p * (Ld_use - Lq_use) * i_d_mid * i_q_mid - prior.T_load) * h / prior.J
     measured = experiment.speed_input > 0.5
     if experiment.segments is None or any(kind == "free" for _, _, kind in experiment.segments):
-        u = _affine_prefix(reset, jnp.where(start, 0.0, jnp.roll(drive_u, 1)))
-        c = _affine_prefix(reset, jnp.where(start, experiment.initial_state[:, 2], jnp.roll(drive_c, 1)))
+        u = _affine_prefix(reset, xp.where(start, 0.0, xp.roll(drive_u, 1)), xp)
+        c = _affine_prefix(reset, xp.where(start, experiment.initial_state[:, 2], xp.roll(drive_c, 1)), xp)
     else:  # static: every free segment measured its speed, so nothing is integrated (a fleet's 0.1 ms a motor)
-        u = c = jnp.zeros_like(drive_u)
-    u_mid = jnp.where(measured, 0.0, 0.5 * (u + shift(u, 1)))
-    c_mid = jnp.where(measured, experiment.speed[:, 1], 0.5 * (c + shift(c, 1)))
+        u = c = xp.zeros_like(drive_u)
+    u_mid = xp.where(measured, 0.0, 0.5 * (u + shift(u, 1)))
+    c_mid = xp.where(measured, experiment.speed[:, 1], 0.5 * (c + shift(c, 1)))
     wf = free.astype(float)
 
     # The residual y - p (lam u + c)(Ld i_d + lam) is a0 + a1 lam + a2 lam^2 per sample, so the
@@ -134,14 +143,14 @@ def _start_one(experiment: Experiment, currents, prior: MotorParams):
     a0 = y - p * c_mid * Ld_use * i_d_mid
     a1 = -p * (u_mid * Ld_use * i_d_mid + c_mid)
     a2 = -p * u_mid
-    m10, m11, m20, m12, m22 = (jnp.sum(wf * x * z) for x, z in ((a1, a0), (a1, a1), (a2, a0), (a1, a2), (a2, a2)))
-    lam = jnp.asarray(prior.lambda_m, dtype=float)
+    m10, m11, m20, m12, m22 = (xp.sum(wf * x * z) for x, z in ((a1, a0), (a1, a1), (a2, a0), (a1, a2), (a2, a2)))
+    lam = xp.asarray(prior.lambda_m, dtype=float)
     for _ in range(8):
         # sum(slope * r) and sum(slope^2) with slope = a1 + 2 a2 lam.
         slope_r = m10 + lam * (m11 + 2.0 * m20) + lam**2 * 3.0 * m12 + lam**3 * 2.0 * m22
         slope_2 = m11 + 4.0 * lam * m12 + 4.0 * lam**2 * m22
         lam = lam - slope_r / slope_2
-    lam = jnp.where(jnp.sum(wf) > 0, lam, jnp.nan)
+    lam = xp.where(xp.sum(wf) > 0, lam, xp.nan)
     return {"R": R, "Ld": l_d, "Lq": l_q, "lambda_m": lam}
 
 
@@ -169,16 +178,36 @@ def start_from_data(experiment: Experiment, currents, prior: MotorParams, names:
         found = jax.lax.map(lambda pair: _start_one(*pair, prior), (experiment, currents), batch_size=START_TILE)
     else:
         found = jax.lax.map(lambda cur: _start_one(experiment, cur, prior), currents, batch_size=START_TILE)
+    return _trusted(found, prior, names, currents.shape[:1], jnp)
+
+
+def start_on_host(experiment: Experiment, currents: np.ndarray, prior: MotorParams,
+                  names: tuple[str, ...]) -> np.ndarray:
+    """:func:`equation_error_start` of one dataset in numpy, shape (1, len(names)) (SI units): no compiled call.
+
+    The same equations; the sums and the speed's running integral add up in another order (equal to
+    float64 rounding). ``currents`` (1, M, 2) A; ``experiment`` shared (no batch axis).
+    """
+    to_host = functools.partial(jax.tree_util.tree_map, np.asarray)
+    with np.errstate(all="ignore"):  # an axis without excitation: 0/0, then the prior (as in JAX)
+        found = {k: np.asarray(v)[None] for k, v in _start_one(to_host(experiment), np.asarray(currents[0]),
+                                                                to_host(prior), np).items()}
+        return _trusted(found, to_host(prior), names, (1,), np)
+
+
+def _trusted(found: dict, prior: MotorParams, names: tuple[str, ...], batch: tuple[int, ...], xp) -> Any:
+    """Per dataset and name, the estimate ``found`` where it is finite and within ``SPAN`` of the prior, else the
+    prior; (B, len(names))."""
     columns = []
     for n in names:
-        p = jnp.asarray(getattr(prior, n), dtype=float)
+        p = xp.asarray(getattr(prior, n), dtype=float)
         if n not in found:
-            columns.append(jnp.broadcast_to(p, currents.shape[:1]))
+            columns.append(xp.broadcast_to(p, batch))
             continue
         x = found[n]
-        trusted = jnp.isfinite(x) & (x > p / SPAN) & (x < p * SPAN)
-        columns.append(jnp.where(trusted, x, p))
-    return jnp.stack(columns, axis=-1)
+        trusted = xp.isfinite(x) & (x > p / SPAN) & (x < p * SPAN)
+        columns.append(xp.where(trusted, x, p))
+    return xp.stack(columns, axis=-1)
 
 
 _start_compiled = jax.jit(start_from_data, static_argnames=("names",))
