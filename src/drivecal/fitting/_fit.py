@@ -4,9 +4,11 @@ Unknowns are searched as ``z = ln(theta / theta_prior)`` so every parameter
 stays positive and every direction has the same scale (a raw ``ln(theta)``
 lets the first trust-region step jump to stiff, absurd motors). Bench effects
 that may be zero or negative (sensor offsets, dead-time voltage) are searched
-additively, ``theta = theta_prior + step * z`` (``physics.search_scale``). The whole
-solve — optimistix LM, the Jacobian at the optimum, the covariance — is one
-``jax.jit``-compiled function, ``vmap``-ped over datasets and starting points.
+additively, ``theta = theta_prior + step * z`` (``physics.search_scale``). A batch's
+whole solve — optimistix LM, the Jacobian at the optimum, the covariance — is one
+``jax.jit``-compiled function, ``vmap``-ped over datasets and starting points; a
+single fit takes the same steps from the host, each one call of its sensitivity
+kernel (``_host_lm``).
 
 Uncertainty: ``Cov = sigma_hat^2 (J^T J)^-1`` with ``sigma_hat^2 = ||r||^2 / (m - n)``,
 standard errors from its diagonal and Student-t 95 % intervals with m - n
@@ -16,10 +18,8 @@ nothing throws: each fit carries its own result code.
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 
-import jax
 import numpy as np
 
 from .._stats import t_ppf
@@ -31,7 +31,7 @@ from ..physics import ESTIMATED, MotorParams, from_search, parameter_values, to_
 from ..results import Calibration
 from ._options import FitOptions
 from ._host_lm import solve_on_host
-from ._solver import _Solved, _first, _solve_batch, _solve_staged
+from ._solver import _Solved, _first, _solve_staged
 
 
 def _start_vector(initial: MotorParams | np.ndarray | None, prior: MotorParams, names: tuple[str, ...]) -> np.ndarray:
@@ -113,12 +113,8 @@ def fit_currents(
     history = None
     if batched:
         solved = _solve_staged(cur, start, prior, experiment, tuple(names), fit_names, options)
-    elif experiment.dead_time:  # its compiled solve: the sequential rollout's Jacobian is faster there (_host_lm)
-        solved = jax.device_get(_solve_batch(cur, start, prior, experiment, tuple(names), fit_names,
-                                             dataclasses.replace(options, first_pass_steps=None), record=True))
     else:  # stepped from the host with the identifiability check's kernel: no solve program to compile or load
         solved = _Solved(**solve_on_host(cur, start, prior, experiment, tuple(names), fit_names, options))
-    if not batched:
         z0 = to_search(prior, fit_names, solved.initial[:, fit_idx])
         steps = [z0[0]] + list(np.asarray(solved.accepted)[0, : int(solved.iterations[0])])
         steps = [steps[0]] + [b for a, b in zip(steps, steps[1:]) if not np.array_equal(a, b)]

@@ -99,58 +99,6 @@ def _gauss_newton_step(state: _NormalEquationsState, s2) -> tuple[jnp.ndarray, j
     return step, jnp.where(jnp.isfinite(size), size, jnp.inf)
 
 
-class _RecordingState(eqx.Module):
-    inner: Any
-    accepted: jnp.ndarray
-
-    @property
-    def f_info(self):
-        return self.inner.f_info
-
-    @property
-    def descent_state(self):
-        return self.inner.descent_state
-
-
-class _Recording(optx.AbstractLeastSquaresSolver):
-    """A least-squares solver that also keeps ``y`` after every step (its last accepted iterate).
-
-    The iterates live in the solver state, inside the compiled graph: a host
-    callback would do the same but keeps the executable out of JAX's
-    persistent compilation cache (a ~3 s compile in every new process).
-    """
-
-    inner: optx.AbstractLeastSquaresSolver
-    steps: int = eqx.field(static=True)
-
-    @property
-    def rtol(self):
-        return self.inner.rtol
-
-    @property
-    def atol(self):
-        return self.inner.atol
-
-    @property
-    def norm(self):
-        return self.inner.norm
-
-    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
-        state = self.inner.init(fn, y, args, options, f_struct, aux_struct, tags)
-        return _RecordingState(state, jnp.zeros((self.steps,) + jnp.shape(y), jnp.result_type(y)))
-
-    def step(self, fn, y, args, options, state, tags):
-        y, inner, aux = self.inner.step(fn, y, args, options, state.inner, tags)
-        accepted = state.accepted.at[inner.num_steps - 1].set(y)
-        return y, _RecordingState(inner, accepted), aux
-
-    def terminate(self, fn, y, args, options, state, tags):
-        return self.inner.terminate(fn, y, args, options, state.inner, tags)
-
-    def postprocess(self, fn, y, aux, args, options, state, tags, result):
-        return self.inner.postprocess(fn, y, aux, args, options, state.inner, tags, result)
-
-
 def _jacobian_in_one_pass(f):
     """``f`` (to a pytree of 1-D arrays) with a JVP rule that builds the whole Jacobian in one forward sweep.
 

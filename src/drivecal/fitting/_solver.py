@@ -36,20 +36,18 @@ class _Solved(eqx.Module):
     iterations: jnp.ndarray  # ()
     result_code: jnp.ndarray  # () optimistix RESULTS index
     converged: jnp.ndarray  # () bool
-    accepted: jnp.ndarray | None = None  # (max_steps, n) z after each LM step (recorded solves only)
+    accepted: jnp.ndarray | None = None  # (max_steps, n) z after each LM step (a single fit's, from _host_lm)
     initial: jnp.ndarray | None = None  # (len(names),) where the search started, SI units
     residuals: jnp.ndarray | None = None  # (M, 2) A, model minus measured at the last linearisation
 
 
-def _solve_one(currents, z0, prior, experiment, names, options, record) -> _Solved:
+def _solve_one(currents, z0, prior, experiment, names, options) -> _Solved:
     import optimistix as optx
 
-    from ._lm import _LevenbergMarquardt, _Recording, _gauss_newton_step, _residual_fn, _size_and_sum_of_squares
+    from ._lm import _LevenbergMarquardt, _gauss_newton_step, _residual_fn, _size_and_sum_of_squares
 
     residual = _residual_fn(prior, experiment, names, currents)
     solver = _LevenbergMarquardt(rtol=options.rtol, atol=options.atol, step_se=options.step_se)
-    if record:
-        solver = _Recording(solver, options.max_steps)
     sol = optx.least_squares(residual, solver, z0, max_steps=options.max_steps, throw=False)
     # The solver's last accepted linearisation is at sol.value: its residual and
     # J^T J in z (relative units, or per additive step: better conditioned to
@@ -80,7 +78,6 @@ def _solve_one(currents, z0, prior, experiment, names, options, record) -> _Solv
         iterations=sol.stats["num_steps"],
         result_code=solver_code(sol.result),
         converged=ok,
-        accepted=sol.state.accepted if record else None,
         residuals=join_current_parts(experiment, sol.state.f_info.residual),
     )
 
@@ -138,8 +135,8 @@ def _first(tree):
     return jax.tree_util.tree_map(lambda a: a[0], tree)
 
 
-@functools.partial(jax.jit, static_argnames=("names", "fit_names", "options", "record"))
-def _solve_compiled(currents, start, prior, experiment, names, fit_names, options, record=False) -> _Solved:
+@functools.partial(jax.jit, static_argnames=("names", "fit_names", "options"))
+def _solve_compiled(currents, start, prior, experiment, names, fit_names, options) -> _Solved:
     from_data = start is None  # static: the start comes from the data, computed in the same compiled call
     if from_data:
         start = start_from_data(experiment, currents, prior, names)
@@ -155,40 +152,39 @@ def _solve_compiled(currents, start, prior, experiment, names, fit_names, option
             cur, z, exp = args if per_dataset else (*args, experiment)
             if from_data and options.shared_jacobian_steps > 0:
                 z = _shared_jacobian_steps(cur, z, prior, exp, exp_axis, fit_names, options.shared_jacobian_steps)
-            return jax.vmap(_solve_one, in_axes=(0, 0, None, exp_axis, None, None, None))(
-                cur, z, prior, exp, fit_names, options, record)
+            return jax.vmap(_solve_one, in_axes=(0, 0, None, exp_axis, None, None))(
+                cur, z, prior, exp, fit_names, options)
 
         tiles = jax.tree_util.tree_map(lambda a: a.reshape((batch // SOLVE_TILE, SOLVE_TILE) + a.shape[1:]),
                                        (currents, z0, experiment) if per_dataset else (currents, z0))
         solved = jax.tree_util.tree_map(lambda a: a.reshape((batch,) + a.shape[2:]), jax.lax.map(tile, tiles))
     elif batch == 1:
-        # One fit traced as one: under vmap every loop body of the solve is traced again by the batching
-        # rules (trace and lower 2.7 -> 1.3 s, compile 2.0 -> 1.8 s on examples/bench.csv, the same bits
-        # there; the demo's locked q-step fit moved by an ulp).
+        # A batch of one (a fleet's lone motor of its plan shape) traced as one fit: under vmap every loop
+        # body of the solve is traced again by the batching rules (trace and lower 2.7 -> 1.3 s, compile
+        # 2.0 -> 1.8 s on examples/bench.csv, the same bits there).
         one = _solve_one(currents[0], z0[0], prior, _first(experiment) if per_dataset else experiment,
-                         fit_names, options, record)
+                         fit_names, options)
         solved = jax.tree_util.tree_map(lambda a: a[None], one)
     else:
-        solved = jax.vmap(_solve_one, in_axes=(0, 0, None, 0 if per_dataset else None, None, None, None))(
-            currents, z0, prior, experiment, fit_names, options, record
+        solved = jax.vmap(_solve_one, in_axes=(0, 0, None, 0 if per_dataset else None, None, None))(
+            currents, z0, prior, experiment, fit_names, options
         )
     return dataclasses.replace(solved, initial=start)
 
 
-def _solve_fields(currents, start, prior, experiment, names, fit_names, options, record):
-    solved = _solve_compiled(currents, start, prior, experiment, names, fit_names, options, record)
+def _solve_fields(currents, start, prior, experiment, names, fit_names, options):
+    solved = _solve_compiled(currents, start, prior, experiment, names, fit_names, options)
     return tuple(getattr(solved, f.name) for f in dataclasses.fields(_Solved))
 
 
-def _solve_batch(currents, start, prior, experiment, names, fit_names, options, record=False) -> _Solved:
+def _solve_batch(currents, start, prior, experiment, names, fit_names, options) -> _Solved:
     """Fit ``fit_names`` (of ``names``) to a batch: currents (B, M, 2) A. One compiled call.
 
     ``start`` (B, len(names)) SI units is where each search starts, or None:
     from the data (``initial.start_from_data``, inside the same call). The
     experiment is shared (arrays of M samples) or one per dataset (a leading
     B axis on every array, e.g. a fleet whose benches each measured their own
-    voltages and speed). With ``record`` (single fits) ``accepted`` holds the
-    iterate after each LM step (for convergence plots).
+    voltages and speed).
     """
     # Jacobian sweeps from the linearised steps are several times faster for one or two fits; from a
     # few fits up, forward mode through the scans wins (less memory traffic).
@@ -201,10 +197,10 @@ def _solve_batch(currents, start, prior, experiment, names, fit_names, options, 
         experiment = dataclasses.replace(experiment, linearised_tangents=linearised, rolled=rolled)
     # A batch's solve with XLA's legacy emitters: 235 object files against 401 for a fleet's chunk of 256 (a
     # kernel of more than _setup.MAX_CACHED_OBJECTS is not kept, and every batch process compiled it again).
-    # A single fit's at LLVM's level 0 (model.RUN_ONCE), unless the dead time's rollout makes it run long.
+    # A batch of one's at LLVM's level 0 (model.RUN_ONCE), unless the dead time's rollout makes it run long.
     single = None if experiment.dead_time else RUN_ONCE
     fields = cached_call(_solve_fields, "solve_batch", currents, start, prior, experiment, names=names,
-                         fit_names=fit_names, options=options, record=record,
+                         fit_names=fit_names, options=options,
                          compiler_options=LEGACY_EMITTERS if currents.shape[0] > 1 else single)
     return _Solved(*fields)
 

@@ -8,4 +8,5 @@ from ._magnetic_reasons import MAGNETIC_FIX, current_levels, magnetic_reasons
 
 __all__ = ["COND_MAX", "CORR_MAX", "DEAD_TOL", "Identifiability", "MAGNETIC_FIX", "PROBE_COMPILER_OPTIONS",
            "WEAK_RELATIVE_CI", "assess_identifiability", "check_requested", "current_levels",
-           "identifiability_report", "jacobian_and_outputs", "magnetic_reasons", "sensitivity_jacobian", "structural_reason"]
+           "identifiability_report", "jacobian_and_outputs", "magnetic_reasons", "sensitivity_jacobian",
+           "structural_reason"]
