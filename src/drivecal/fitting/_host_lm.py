@@ -70,9 +70,10 @@ def solve_on_host(currents: np.ndarray, start: np.ndarray | None, prior: MotorPa
     with np.errstate(all="ignore"):  # a diverging trial point's residuals are inf or NaN: rejected, as in JAX
         y, result, steps, accepted, last = _iterate(linearise, z, n, options)
         residual, gram, gradient = last
+        residual = np.full(measured.shape, np.nan) if residual is None else residual  # no step taken
         m, rss = residual.shape[0], float(residual @ residual)
         s2 = rss / (m - n)
-        step, size = gauss_newton_step(gram, gradient, s2)
+        step, size = _gauss_newton_step(gram, gradient, s2)
         z_final = y - step if size <= options.step_se else y
         theta = from_search(prior, fit_names, z_final, np)[0]
         dtheta_dz = from_search(prior, fit_names, y, np)[1]
@@ -94,6 +95,8 @@ def _iterate(linearise, y: np.ndarray, n: int, options: FitOptions) -> tuple:
     gram, gradient = np.zeros((n, n)), np.zeros(n)
     accepted = np.zeros((options.max_steps, n))
     result, terminate, steps, taken = SUCCESSFUL, False, 0, 0
+    if not np.all(np.isfinite(y)):  # as optimistix checks the start
+        result = NONFINITE
     while not terminate and result == SUCCESSFUL and steps < options.max_steps:
         y_before = y
         r_eval, j_eval = linearise(y_eval)
@@ -121,7 +124,7 @@ def _iterate(linearise, y: np.ndarray, n: int, options: FitOptions) -> tuple:
         terminate = converged
         if options.step_se and taken > 0:
             s2 = _sum_squares(residual) / (residual.shape[0] - n)
-            terminate = terminate or gauss_newton_step(gram, gradient, s2)[1] <= options.step_se
+            terminate = terminate or _gauss_newton_step(gram, gradient, s2)[1] <= options.step_se
         if result == SUCCESSFUL and not np.all(np.isfinite(y_before)):  # optimistix checks the point it stepped from
             result = NONFINITE
     if result == SUCCESSFUL and not terminate:
@@ -143,7 +146,7 @@ def _damped_step(step_size: float, gram: np.ndarray, gradient: np.ndarray) -> tu
     return (dz if ok else np.zeros_like(dz)), ok
 
 
-def gauss_newton_step(gram: np.ndarray, gradient: np.ndarray, s2: float) -> tuple[np.ndarray, float]:
+def _gauss_newton_step(gram: np.ndarray, gradient: np.ndarray, s2: float) -> tuple[np.ndarray, float]:
     """``_lm._gauss_newton_step`` on the host: ``(J^T J)^-1 J^T r`` and its size in standard errors (inf
     where not finite)."""
     try:

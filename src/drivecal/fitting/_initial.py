@@ -69,7 +69,8 @@ def _instrumented_lsq(z1, z2, x1, x2, y, w, xp=jnp):
 
 
 def _affine_prefix(a, b, xp=jnp):
-    """``s[k] = a[k] * s[k-1] + b[k]`` from ``s[-1] = 0`` for all k at once (log-depth scan)."""
+    """``s[k] = a[k] * s[k-1] + b[k]`` from ``s[-1] = 0`` for all k: at once in JAX (log-depth scan), sample by
+    sample in numpy (``xp`` numpy)."""
     def combine(first, second):
         return second[0] * first[0], second[0] * first[1] + second[1]
 

@@ -1,12 +1,12 @@
-"""The Levenberg-Marquardt solve behind a fit: one fit's solve, tiling and batching.
+"""The Levenberg-Marquardt solve behind a batch of fits: one fit's solve, tiling and batching.
 
 One ``jax.jit``-compiled function per plan shape solves a batch of fits
-(under ``vmap``, in tiles of ``SOLVE_TILE``) or a single fit with the dead
-time, and returns the estimate, the Jacobian's covariance and how the solve
-ended; :mod:`._fit` turns it into a :class:`drivecal.results.Calibration`.
-A single fit without the dead time takes the same steps from the host
-(:mod:`._host_lm`), with no solve program of its own. The residuals and the optimistix solver are in :mod:`._lm`,
-imported where a solve is traced: a solve loaded from the disk cache needs no optimistix.
+(under ``vmap``, in tiles of ``SOLVE_TILE``), and returns the estimate, the
+Jacobian's covariance and how the solve ended; :mod:`._fit` turns it into a
+:class:`drivecal.results.Calibration`. A single fit takes the same steps from
+the host (:mod:`._host_lm`), with no solve program of its own. The residuals
+and the optimistix solver are in :mod:`._lm`, imported where a solve is
+traced: a solve loaded from the disk cache needs no optimistix.
 """
 
 from __future__ import annotations
