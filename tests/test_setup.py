@@ -45,3 +45,18 @@ def test_the_check_is_installed_once(written):
     checked = compilation_cache.put_executable_and_time
     _setup._keep_loadable_kernels_only()
     assert compilation_cache.put_executable_and_time is checked
+
+
+def test_a_kernel_the_lowered_cache_keeps_is_serialised_once_and_not_written_twice(written):
+    """Compiled while ``model._lowered_cache`` keeps it (``KERNELS.keeping``): its bytes are noted for the lowered
+    cache, which keeps them, and JAX's cache does not write a second copy."""
+    kernel = _Kernel(3)
+    _setup.KERNELS.keeping = True
+    try:
+        compilation_cache.put_executable_and_time("kept", "jit_fit", kernel, None, 1.0)
+    finally:
+        _setup.KERNELS.keeping = False
+    latest, _setup.KERNELS.latest = _setup.KERNELS.latest, None
+    assert written == [] and latest == (kernel, kernel.serialize())
+    compilation_cache.put_executable_and_time("plain", "jit_fit", kernel, None, 1.0)
+    assert written == ["plain"]

@@ -77,10 +77,13 @@ def _keep_loadable_kernels_only() -> None:
 
     def checked(cache_key, module_name, executable, backend, compile_time):
         try:
-            objects = executable.serialize().count(b"\x7fELF")
+            serialized = executable.serialize()
         except Exception:  # serialisation is JAX's to report, in its own write
-            objects = 0
-        if objects > MAX_CACHED_OBJECTS:
+            serialized = None
+        if getattr(KERNELS, "keeping", False):  # model._lowered_cache keeps it: no second copy on disk
+            KERNELS.latest = None if serialized is None else (executable, serialized)
+            return None
+        if serialized is not None and serialized.count(b"\x7fELF") > MAX_CACHED_OBJECTS:
             return None
         return write(cache_key, module_name, executable, backend, compile_time)
 
@@ -88,14 +91,16 @@ def _keep_loadable_kernels_only() -> None:
     compilation_cache.put_executable_and_time = checked
 
 
-#: The latest compilation-cache hit of this thread: ``latest`` is (the loaded executable, its serialised
-#: bytes as the cache holds them), or None. ``model._lowered_cache`` keeps those bytes beside a program:
-#: jaxlib 0.9.2 serialises an executable loaded from the cache without its code.
-CACHE_HITS = threading.local()
+#: The kernels of this thread, as ``model._lowered_cache`` keeps them beside a program. ``latest``: (the
+#: latest kernel the compilation cache supplied, or compiled while ``keeping``; its serialised bytes), or None.
+#: A cache hit's bytes are those the cache holds: jaxlib 0.9.2 serialises an executable loaded from the cache
+#: without its code. ``keeping`` (set by ``model._lowered_cache`` while it compiles a program it keeps):
+#: the compilation cache does not write the kernel (the lowered cache keeps it, serialised once for both).
+KERNELS = threading.local()
 
 
 def _remember_cache_hits() -> None:
-    """Note in :data:`CACHE_HITS` each kernel the compilation cache supplies, with its serialised bytes."""
+    """Note in :data:`KERNELS` each kernel the compilation cache supplies, with its serialised bytes."""
     try:  # JAX's own module, as in _keep_loadable_kernels_only
         from jax._src import compilation_cache
 
@@ -107,15 +112,15 @@ def _remember_cache_hits() -> None:
 
     def extracted(executable_and_time):
         serialized, compile_time = extract(executable_and_time)
-        CACHE_HITS.serialized = serialized
+        KERNELS.serialized = serialized
         return serialized, compile_time
 
     def remembered(*args, **kwargs):
-        CACHE_HITS.serialized = None
+        KERNELS.serialized = None
         executable, compile_time = read(*args, **kwargs)
-        if executable is not None and CACHE_HITS.serialized is not None:
-            CACHE_HITS.latest = (executable, CACHE_HITS.serialized)
-        CACHE_HITS.serialized = None
+        if executable is not None and KERNELS.serialized is not None:
+            KERNELS.latest = (executable, KERNELS.serialized)
+        KERNELS.serialized = None
         return executable, compile_time
 
     remembered._drivecal_remembers = True
