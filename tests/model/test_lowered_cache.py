@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import functools
 import pickle
 import shutil
+import threading
+import time
 import zlib
 from pathlib import Path
 
@@ -14,6 +19,7 @@ import pytest
 
 import drivecal as dc
 from drivecal.model import _lowered_cache as traced
+from drivecal.model import ahead_of_need, side_by_side
 
 _DIRECTORY = traced.directory
 
@@ -171,12 +177,10 @@ def test_tracers_damaged_entries_and_cache_off_take_the_plain_call(store, monkey
     np.testing.assert_array_equal(traced.call(_f, "f", x, y, scale=2.5)["a"], _f(x, y, scale=2.5)["a"])
 
 
-def _counting_exports(monkeypatch, barrier=None):
-    """``_export`` wrapped: how many run, and the most at once (each waits at ``barrier``, else 50 ms)."""
-    import threading
-    import time
-
-    export, lock, seen = traced._export, threading.Lock(), {"calls": 0, "active": 0, "most": 0}
+def _counting_exports(monkeypatch, barrier=None, stage="_export"):
+    """``stage`` (``_export``, or ``_compiled``: its compilation) wrapped: how many run, and the most at once
+    (each waits at ``barrier``, else 50 ms)."""
+    export, lock, seen = getattr(traced, stage), threading.Lock(), {"calls": 0, "active": 0, "most": 0}
 
     def counted(*args, **kwargs):
         with lock:
@@ -190,70 +194,121 @@ def _counting_exports(monkeypatch, barrier=None):
             with lock:
                 seen["active"] -= 1
 
-    monkeypatch.setattr(traced, "_export", counted)
+    monkeypatch.setattr(traced, stage, counted)
     return seen
 
 
 def test_threads_asking_for_one_program_at_once_export_it_once(store, monkeypatch):
     x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
     seen = _counting_exports(monkeypatch)
-    outs = traced.side_by_side([lambda: traced.call(_f, "f", x, y, scale=2.5)] * 4)
+    outs = side_by_side([lambda: traced.call(_f, "f", x, y, scale=2.5)] * 4)
     assert seen["calls"] == 1
     for out in outs:
         np.testing.assert_array_equal(out["a"], _f(x, y, scale=2.5)["a"])
 
 
 def test_work_ahead_of_need_compiles_one_program_at_a_time(store, monkeypatch):
-    """Marked ``ahead_of_need``, new programs trace and compile one after the other; unmarked, side by side."""
-    import threading
-
+    """Marked ``ahead_of_need``, new programs trace and compile one after the other; unmarked, they trace one
+    after the other and compile side by side."""
     x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
     scales = (1.0, 2.0, 3.0)
-    # unmarked: all three meet inside _export (a barrier of three: they would time out one after the other)
-    seen = _counting_exports(monkeypatch, threading.Barrier(3))
-    traced.side_by_side([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
+    # unmarked: all three meet inside their compilations (a barrier of three: they would time out one after
+    # the other)
+    seen = _counting_exports(monkeypatch, threading.Barrier(3), stage="_compiled")
+    side_by_side([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
     assert seen["calls"] == 3 and seen["most"] == 3
     monkeypatch.undo()  # a new store, as in a new process
     (store / "ahead").mkdir()
     monkeypatch.setattr(traced, "directory", lambda: store / "ahead")
     monkeypatch.setattr(traced, "_LOADED", {})
     seen = _counting_exports(monkeypatch)
-    with traced.ahead_of_need():
-        outs = traced.side_by_side([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
+    with ahead_of_need():
+        outs = side_by_side([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
     assert seen["calls"] == 3 and seen["most"] == 1
     for s, out in zip(scales, outs):
         np.testing.assert_array_equal(out["a"], _f(x, y, scale=s)["a"])
     # kept programs load side by side, marked or not: no export at all
     monkeypatch.setattr(traced, "_LOADED", {})
-    with traced.ahead_of_need():
-        traced.side_by_side([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
+    with ahead_of_need():
+        side_by_side([lambda s=s: traced.call(_f, "f", x, y, scale=s) for s in scales])
     assert seen["calls"] == 3
 
 
 def test_a_call_needed_now_never_waits_behind_the_queue_of_work_ahead_of_need(store, monkeypatch):
     """An ahead-of-need thread waiting for its turn to export holds no key's lock: the caller that needs the
-    same program now exports it at once, and the waiting thread then finds it."""
-    import contextvars
-    import threading
-
+    same program now exports it at once (beside the compilation ahead of need under way), and the waiting
+    thread then finds it."""
     x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
-    seen = _counting_exports(monkeypatch)
-    traced._AHEAD_EXPORTS.acquire()  # another ahead-of-need export under way
+    go, compiled, exports = threading.Event(), traced._compiled, _counting_exports(monkeypatch)
+    compiling = []
+
+    def held(*args):
+        compiling.append(len(compiling))
+        if len(compiling) == 1:  # the first program ahead of need compiles, in its turn, until ``go``
+            go.wait(60)
+        return compiled(*args)
+
+    monkeypatch.setattr(traced, "_compiled", held)
     try:
-        context = contextvars.copy_context()
-        context.run(lambda: traced._AHEAD.set(True))
-        ahead = threading.Thread(target=context.run, args=(lambda: traced.call(_f, "f", x, y, scale=2.5),))
-        ahead.start()
-        ahead.join(timeout=0.5)
-        assert ahead.is_alive()  # queued for its turn
+        with ahead_of_need():
+            busy = threading.Thread(target=_in_this_context(lambda: traced.call(_f, "f", x, y, scale=9.0)))
+            busy.start()
+            deadline = time.monotonic() + 60
+            while not compiling and time.monotonic() < deadline:
+                time.sleep(0.01)
+            ahead = threading.Thread(target=_in_this_context(lambda: traced.call(_f, "f", x, y, scale=2.5)))
+            ahead.start()
+            ahead.join(timeout=0.5)
+            assert ahead.is_alive() and exports["calls"] == 1  # queued for its turn
         now = threading.Thread(target=lambda: traced.call(_f, "f", x, y, scale=2.5))
         now.start()
-        now.join(timeout=60)
-        assert not now.is_alive() and seen["calls"] == 1
+        now.join(timeout=30)
+        assert not now.is_alive() and exports["calls"] == 2 and not go.is_set()
     finally:
-        traced._AHEAD_EXPORTS.release()
+        go.set()
+    busy.join(timeout=60)
     ahead.join(timeout=60)
-    assert not ahead.is_alive() and seen["calls"] == 1
+    assert not ahead.is_alive() and exports["calls"] == 2  # it found the program exported
+
+
+def test_work_ahead_of_need_keeps_no_turn_while_another_thread_exports_its_program(store, monkeypatch):
+    """A thread ahead of need whose program another thread is exporting waits for it without its turn:
+    the next program ahead of need is traced meanwhile."""
+    x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
+    seen = _counting_exports(monkeypatch)
+    locks, turn = [], traced._turn
+
+    @contextlib.contextmanager
+    def turn_once_another_exports():
+        if not locks:  # the first thread's program: a thread that needs it takes it now, to export it
+            (lock,) = traced._KEY_LOCKS.values()
+            lock.acquire()
+            locks.append(lock)
+        with turn():
+            yield
+
+    monkeypatch.setattr(traced, "_turn", turn_once_another_exports)
+    monkeypatch.setattr(traced, "_KEY_LOCKS", {})
+    try:
+        with ahead_of_need():
+            waiting = threading.Thread(target=_in_this_context(lambda: traced.call(_f, "f", x, y, scale=1.0)))
+            waiting.start()
+            waiting.join(timeout=0.5)
+            assert waiting.is_alive() and locks
+            other = threading.Thread(target=_in_this_context(lambda: traced.call(_f, "f", x, y, scale=2.0)))
+            other.start()
+            other.join(timeout=10)
+            assert not other.is_alive() and seen["calls"] == 1  # not behind the waiting thread's turn
+    finally:
+        for lock in locks:
+            lock.release()
+    waiting.join(timeout=60)
+    assert not waiting.is_alive() and seen["calls"] == 2  # the other thread only held the lock: exported now
+
+
+def _in_this_context(job):
+    """``job`` to run in a thread, in a copy of this context (its ahead-of-need mark)."""
+    return functools.partial(contextvars.copy_context().run, job)
 
 
 def test_sensitivity_jacobian_kept_equals_plain(store, truth, monkeypatch):

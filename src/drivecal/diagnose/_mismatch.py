@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Any
+from typing import Any, Callable
 
 import jax
 import numpy as np
@@ -160,7 +160,16 @@ def _one_substep(experiment: Experiment) -> Experiment:
 
 def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
                       effects: tuple[str, ...]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """The fitted parameters' sensitivity columns (m, n) and each effect's probe columns (m, k) at ``motor``.
+    """The fitted parameters' sensitivity columns (m, n) and each effect's probe columns (m, k) at ``motor``
+    (:func:`_signature_work`'s jobs, run side by side)."""
+    work, assemble = _signature_work(motor, fit_names, experiment, effects)
+    return assemble(side_by_side(work))
+
+
+def _signature_work(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
+                    effects: tuple[str, ...]) -> tuple[list[Callable[[], np.ndarray]], Callable]:
+    """The jobs of :func:`effect_signatures`, the probes' first (delay, dead time, offsets: the largest first)
+    and the fitted columns' last, and the function of their results that is its value. The fitted parameters' sensitivity columns (m, n) and each effect's probe columns (m, k) at ``motor``.
 
     ``m`` = 2 x samples (i_d and i_q interleaved per sample, as ``currents.reshape(-1)``). The fitted
     columns come from the fit's own sensitivity kernel (``identify.sensitivity_jacobian``: the one its
@@ -190,15 +199,24 @@ def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment
         return np.asarray(sensitivity_jacobian(motor, probe, probes, probing=True))[:m]
 
     probed = [p for p in dict.fromkeys(groups.values()) if p]
-    work = [functools.partial(probe_columns, p) for p in probed] + [fitted_columns]
-    results = side_by_side(work)
-    fitted, found = results[-1], dict(zip(probed, results))
-    columns = {}
-    for e in effects:
-        by_name = {n: fitted[:, names.index(n)] for n in _ALL_EFFECTS[e][1] if n in names}
-        by_name.update({n: found[groups[e]][:, i] for i, n in enumerate(groups[e])})
-        columns[e] = np.stack([by_name[n] for n in _ALL_EFFECTS[e][1]], axis=1)
-    return fitted, columns
+
+    def assemble(results: list) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        fitted, found = results[-1], dict(zip(probed, results))
+        columns = {}
+        for e in effects:
+            by_name = {n: fitted[:, names.index(n)] for n in _ALL_EFFECTS[e][1] if n in names}
+            by_name.update({n: found[groups[e]][:, i] for i, n in enumerate(groups[e])})
+            columns[e] = np.stack([by_name[n] for n in _ALL_EFFECTS[e][1]], axis=1)
+        return fitted, columns
+
+    return [functools.partial(probe_columns, p) for p in probed] + [fitted_columns], assemble
+
+
+def untested_effects(fit_names: tuple[str, ...], experiment: Experiment) -> tuple[str, ...]:
+    """The effects :func:`unmodelled_effects` tests by default: every one of :data:`EFFECTS` none of whose
+    parameters the fit estimated, and with a measured rotor angle the encoder offset (:data:`ANGLE_EFFECTS`)."""
+    groups = {**EFFECTS, **ANGLE_EFFECTS} if experiment.has_angle else EFFECTS
+    return tuple(e for e, (params, _, _) in groups.items() if not set(params) & set(fit_names))
 
 
 #: What :func:`prepare_unmodelled_effects` has compiled in this process.
@@ -228,7 +246,7 @@ def prepare_unmodelled_effects(motor: MotorParams, fit_names: tuple[str, ...], e
         base = model_experiment(experiment, motor, tuple(fit_names))
         # What unmodelled_effects runs after the fit: kept kernels load side by side, new ones compile one at a
         # time (model.ahead_of_need), the largest first.
-        work = [lambda: effect_signatures(motor, tuple(fit_names), base, plain)] if plain else []
+        work = _signature_work(motor, tuple(fit_names), base, plain)[0] if plain else []
         if magnetic:
             work.append(lambda: saturation_columns(motor, _one_substep(model_experiment(base, motor, MAGNETIC))))
         work.append(lambda: predicted_currents(motor, base))
@@ -266,9 +284,7 @@ def unmodelled_effects(
         one-step estimate and its standard error, SI units) and a ``message``.
     """
     if effects is None:
-        effects = tuple(e for e, (params, _, _) in EFFECTS.items() if not set(params) & set(fit_names))
-        if experiment.has_angle:
-            effects += tuple(e for e, (params, _, _) in ANGLE_EFFECTS.items() if not set(params) & set(fit_names))
+        effects = untested_effects(fit_names, experiment)
     if not effects:
         return []
     motor = with_experiment_delay(motor, experiment)

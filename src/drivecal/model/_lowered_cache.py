@@ -32,8 +32,6 @@ call.
 
 from __future__ import annotations
 
-import contextlib
-import contextvars
 import functools
 import hashlib
 import logging
@@ -48,6 +46,8 @@ from typing import Any, Callable
 
 import jax
 import numpy as np
+
+from ._ahead import _traced, _turn
 
 logger = logging.getLogger(__name__)
 
@@ -85,38 +85,6 @@ _LOADED: dict[str, tuple[Callable, Any] | None] = {}
 #: ahead beside its own) wait for the one loading or exporting it rather than doing the same work again.
 _KEY_LOCKS: dict[str, threading.Lock] = {}
 _KEY_LOCKS_GUARD = threading.Lock()
-#: Set in work done ahead of need (:func:`ahead_of_need`); such work traces and compiles one program at a time.
-_AHEAD = contextvars.ContextVar("drivecal_ahead_of_need", default=False)
-_AHEAD_EXPORTS = threading.Lock()
-
-
-@contextlib.contextmanager
-def ahead_of_need():
-    """Mark the calls in this context as work done ahead of need (a first fit's later kernels, compiled beside it).
-
-    Such calls load kept programs at once, side by side, but trace and compile one program at a time
-    across all such threads: tracing is Python and holds the GIL, and several traces beside the
-    caller's own starve it (a cold ``drivecal fit examples/bench.csv``: its base fit's first kernel
-    ready at 15 s with five threads tracing beside it, at 4 s with one). Threads started inside
-    inherit the mark where they run in a copy of the context (``contextvars.copy_context().run``).
-    """
-    token = _AHEAD.set(True)
-    try:
-        yield
-    finally:
-        _AHEAD.reset(token)
-
-
-def side_by_side(jobs: list[Callable[[], Any]]) -> list:
-    """``[job() for job in jobs]``, each in a thread of its own, in a copy of the caller's context (its
-    :func:`ahead_of_need` mark): kernels compile and load side by side (XLA releases the GIL); the
-    numbers are those of one after the other."""
-    import concurrent.futures
-
-    with concurrent.futures.ThreadPoolExecutor(len(jobs)) as pool:
-        return [done.result() for done in [pool.submit(contextvars.copy_context().run, job) for job in jobs]]
-
-
 def directory() -> Path | None:
     """Where lowered programs are kept (inside the compilation cache), or None when caching is off."""
     from .._setup import cache_enabled as _cache_enabled
@@ -287,13 +255,18 @@ def _compiled(exported: Any, leaves: list, options: dict | None) -> tuple[Callab
 
     Kept only where it has at most ``_setup.MAX_CACHED_OBJECTS`` object files (as the compilation cache:
     more crash the process that loads them). Where the compilation cache supplied the kernel, its bytes
-    are those the cache read (:data:`_setup.CACHE_HITS`), not jaxlib's serialisation of the loaded kernel.
+    are those the cache read (:data:`_setup.KERNELS`), not jaxlib's serialisation of the loaded kernel.
+    Where this process compiled it, they are those serialised for the compilation cache's check, which
+    then writes no copy of its own (a cold ``drivecal demo --out``: 1.2 -> 0.5 s of its threads' time).
     """
-    from .._setup import CACHE_HITS, MAX_CACHED_OBJECTS
+    from .._setup import KERNELS, MAX_CACHED_OBJECTS
 
-    CACHE_HITS.latest = None
-    compiled = _runner(exported, options).lower(*leaves).compile()
-    hit, CACHE_HITS.latest = CACHE_HITS.latest, None
+    KERNELS.latest, KERNELS.keeping = None, True
+    try:
+        compiled = _runner(exported, options).lower(*leaves).compile()
+    finally:
+        KERNELS.keeping = False
+    hit, KERNELS.latest = KERNELS.latest, None
     try:
         payload, in_tree, out_tree = _serialize(compiled, hit)
     except Exception as exc:
@@ -382,6 +355,7 @@ def _export(fn: Callable, name: str, leaves: list, treedef: Any, static: dict[st
 
     try:
         exported = export.export(jax.jit(flat))(*leaves)
+        _traced()
         # The VJP hook is a closure (not needed: these calls are never differentiated).
         exported = dataclasses.replace(exported, _get_vjp=None)
         # Only trees of tuples, lists, dicts and None come back intact (an equinox
@@ -423,8 +397,10 @@ def _strongly_typed(leaf: Any) -> Any:
 def _load_or_export(key: str, path: Path, export: Callable[[Path], Any]) -> None:
     """Put ``key``'s entry in ``_LOADED``: kept at ``path``, else ``export(path)``, once across threads.
 
-    A thread marked :func:`ahead_of_need` queues for its turn to export before it takes the key's
-    lock, not while holding it: a thread that needs the program now never waits behind that queue.
+    A thread waits for its turn to trace (``model._ahead``) before it takes the key's lock, not while
+    holding it: a thread that needs the program now never waits behind the queue of work ahead of need
+    for it. Nor does it keep its turn while another thread exports the same program (a first fit's own
+    sensitivity kernel, which its score tests use too): it waits for that program without it.
     """
     with _KEY_LOCKS_GUARD:
         lock = _KEY_LOCKS.setdefault(key, threading.Lock())
@@ -433,11 +409,17 @@ def _load_or_export(key: str, path: Path, export: Callable[[Path], Any]) -> None
             entry = _load(path)
             if entry is not False:
                 _LOADED[key] = entry
-    if key in _LOADED:
-        return
-    with _AHEAD_EXPORTS if _AHEAD.get() else contextlib.nullcontext(), lock:
-        if key not in _LOADED:
-            _LOADED[key] = export(path)
+    while key not in _LOADED:
+        with _turn():
+            if lock.acquire(blocking=False):
+                try:
+                    if key not in _LOADED:
+                        _LOADED[key] = export(path)
+                finally:
+                    lock.release()
+                return
+        with lock:  # exported by another thread now: wait for it, then look again
+            pass
 
 
 def _plain(fn: Callable, options: dict | None, static: dict[str, Any]) -> Callable:

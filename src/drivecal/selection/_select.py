@@ -40,10 +40,8 @@ sensitivity columns its score test probes (``diagnose.EFFECTS``).
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
-import threading
 from typing import Any, Callable
 
 import numpy as np
@@ -53,7 +51,7 @@ from ..diagnose import ALPHA, EFFECTS, MAGNETIC_EFFECTS, prepare_unmodelled_effe
 from ..errors import DrivecalError
 from ..fitting import FitOptions, fit_currents
 from ..identify import assess_identifiability
-from ..model import Experiment
+from ..model import Experiment, compiled_ahead
 from ..physics import EXPONENT_CANDIDATES, EXPONENTS, MotorParams, is_saturating
 from ..results import Calibration
 from ._backward import drop_effects, refine_exponents
@@ -205,7 +203,7 @@ def select_effects(
                                magnetics)
 
     candidates = [e for e in EFFECTS if e not in requested and not (fixed_delay and e == "delay")]
-    with _compiled_ahead(prepare_unmodelled_effects, prior, names, experiment, tuple(candidates) + magnetic):
+    with compiled_ahead(prepare_unmodelled_effects, prior, names, experiment, tuple(candidates) + magnetic):
         cal = fit_currents(experiment, currents, prior, names=names, options=options, source=source)
     cal, fits, decided, last = _add_effects(experiment, currents, prior, cal, candidates + list(magnetic), options,
                                             source, force=magnetics == "saturating",
@@ -246,24 +244,6 @@ def _with_bridge(experiment: Experiment, currents: np.ndarray, prior: MotorParam
     decided.update(chosen)
     last.update(tests)
     return cal, fits + more + added
-
-
-@contextlib.contextmanager
-def _compiled_ahead(prepare: Callable[..., None], *args: Any):
-    """Run ``prepare(*args)`` (compiling a later step's kernel) in a thread during the block, and wait for it.
-
-    XLA releases the GIL while it compiles: a first fit compiles its base fit and its score tests side by
-    side. A failure in it is left for the later step to meet and report."""
-    def run() -> None:
-        with contextlib.suppress(Exception):  # met and reported by the step that needs the kernel
-            prepare(*args)
-
-    thread = threading.Thread(target=run, name="drivecal-compile-ahead", daemon=True)
-    thread.start()
-    try:
-        yield
-    finally:
-        thread.join()
 
 
 def _with_reference_current(prior: MotorParams, currents: np.ndarray) -> MotorParams:

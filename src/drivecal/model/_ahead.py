@@ -1,0 +1,171 @@
+"""Turns to trace and compile: one program traces at a time, and work done ahead of need gives way.
+
+Tracing is Python and holds the GIL; XLA releases it while it compiles. Several programs traced at once
+take as long in all as one after the other, and each is ready later: a cold ``drivecal demo`` traced its
+two designs' six score-test kernels at once, each trace taking 2.2 s where one alone takes 0.8 s. So a
+program is traced in a turn (:func:`_turn`): one at a time, and it compiles once traced, beside the next
+trace. ``model._lowered_cache`` takes the turns where it traces and compiles a program.
+
+A first fit compiles its score tests' kernels in a thread beside its own (:func:`compiled_ahead`). That
+work is marked ahead of need (:func:`ahead_of_need`) and gives way: it traces only when no program that is
+needed now waits to, and it compiles one program at a time, holding its turn through the compilation,
+until the work is needed (:meth:`AheadOfNeed.needed`). Among the threads waiting, the one first in the
+listed order of the work goes first (:func:`side_by_side`): work is listed largest first.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import contextlib
+import contextvars
+import threading
+from typing import Any, Callable
+
+
+class AheadOfNeed:
+    """The mark of work done ahead of need (:func:`ahead_of_need`), until :meth:`needed` says it is needed now."""
+
+    def __init__(self) -> None:
+        self.is_needed = False
+
+    def needed(self) -> None:
+        """The work is needed now: its programs trace in turns as any other, each compiling beside the next trace.
+
+        A first fit's score-test kernels, traced and compiled ahead one at a time beside its base fit, were
+        still queued when the fit was done, and the selection waited for them one after the other on one
+        core (a cold ``drivecal fit examples/bench.csv``: from 2.4 to 5.6 s).
+        """
+        with _TURNS:
+            self.is_needed = True
+            if _COMPILING_AHEAD[0] is not None and _COMPILING_AHEAD[0][1] is self:
+                _COMPILING_AHEAD[0] = None
+            _TURNS.notify_all()
+
+
+#: The mark of work done ahead of need in this context (:func:`ahead_of_need`), or None.
+_AHEAD: contextvars.ContextVar[AheadOfNeed | None] = contextvars.ContextVar("drivecal_ahead_of_need", default=None)
+#: This context's place in the work listed (:func:`side_by_side` appends the job's index).
+_PLACE: contextvars.ContextVar[tuple] = contextvars.ContextVar("drivecal_place", default=())
+_TURNS = threading.Condition()
+#: The token of the thread tracing now (:func:`_turn`), or None.
+_TRACING: list = [None]
+#: The (token, mark) of the thread whose work ahead of need is in its turn (tracing or compiling), or None.
+_COMPILING_AHEAD: list = [None]
+#: The threads waiting for a turn: (their place in the work, a number of their own, their mark or None).
+_WAITING: list[tuple[tuple, int, AheadOfNeed | None]] = []
+#: This thread's turn token (:func:`_turn`), or None.
+_TURN_HELD = threading.local()
+
+
+def _is_needed(mark: AheadOfNeed | None) -> bool:
+    return mark is None or mark.is_needed
+
+
+def _order(waiting: tuple) -> tuple:
+    """Who goes first: work needed now, then in the listed order."""
+    return (not _is_needed(waiting[2]), waiting[0], waiting[1])
+
+
+def _may_go(waiting: tuple) -> bool:
+    if _TRACING[0] is not None or min(map(_order, _WAITING)) != _order(waiting):
+        return False
+    return _is_needed(waiting[2]) or _COMPILING_AHEAD[0] is None
+
+
+@contextlib.contextmanager
+def ahead_of_need(mark: AheadOfNeed | None = None):
+    """Mark the calls in this context as work done ahead of need (a first fit's later kernels, compiled beside it).
+
+    Such calls load kept programs at once, side by side, but trace only where no program needed now
+    waits to, and trace and compile one program at a time across all such threads: several traces
+    beside the caller's own starve it (a cold ``drivecal fit examples/bench.csv``: its base fit's
+    first kernel ready at 15 s with five threads tracing beside it, at 4 s with one). Threads started
+    inside inherit the mark where they run in a copy of the context (``contextvars.copy_context().run``).
+    ``mark``: the caller's, to say when the work is needed (:meth:`AheadOfNeed.needed`); default: the
+    enclosing context's, else a new one. Yields the mark.
+    """
+    mark = mark or _AHEAD.get() or AheadOfNeed()
+    token = _AHEAD.set(mark)
+    try:
+        yield mark
+    finally:
+        _AHEAD.reset(token)
+
+
+@contextlib.contextmanager
+def compiled_ahead(prepare: Callable[..., Any], *args: Any):
+    """Run ``prepare(*args)`` (compiling a later step's kernels) in a thread during the block, and wait for it.
+
+    XLA releases the GIL while it compiles: a first fit compiles its own kernels and its score tests'
+    side by side, the score tests' ahead of need (:func:`ahead_of_need`) until the block ends; what is
+    left then is needed at once (:meth:`AheadOfNeed.needed`). A failure in it is left for the later step
+    to meet and report.
+    """
+    with ahead_of_need(AheadOfNeed()) as mark:
+        def run() -> None:
+            with contextlib.suppress(Exception):  # met and reported by the step that needs the kernel
+                prepare(*args)
+
+        thread = threading.Thread(target=contextvars.copy_context().run, args=(run,), name="drivecal-compile-ahead",
+                                  daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        mark.needed()
+        thread.join()
+
+
+@contextlib.contextmanager
+def _turn():
+    """Wait for this thread's turn to trace a program (:mod:`the rules <drivecal.model._ahead>`); the turn
+    ends with the block, or at :func:`_traced` where the work is needed now."""
+    mark, token = _AHEAD.get(), object()
+    with _TURNS:
+        waiting = (_PLACE.get(), id(token), mark)
+        _WAITING.append(waiting)
+        while not _may_go(waiting):
+            _TURNS.wait()
+        _WAITING.remove(waiting)
+        _TRACING[0] = _TURN_HELD.token = token
+        if not _is_needed(mark):
+            _COMPILING_AHEAD[0] = (token, mark)
+    try:
+        yield
+    finally:
+        _end_turn()
+
+
+def _traced() -> None:
+    """This thread's program is traced and lowered; it compiles now, while the next program traces (work
+    ahead of need keeps its turn through the compilation, until it is needed)."""
+    with _TURNS:
+        if _TRACING[0] is not None and _TRACING[0] is getattr(_TURN_HELD, "token", None):
+            _TRACING[0] = None
+            _TURNS.notify_all()
+
+
+def _end_turn() -> None:
+    """Give up this thread's turn (:func:`_turn`), what is left of it."""
+    token = getattr(_TURN_HELD, "token", None)
+    with _TURNS:
+        if token is not None and _TRACING[0] is token:
+            _TRACING[0] = None
+        if token is not None and _COMPILING_AHEAD[0] is not None and _COMPILING_AHEAD[0][0] is token:
+            _COMPILING_AHEAD[0] = None
+        _TURNS.notify_all()
+    _TURN_HELD.token = None
+
+
+def side_by_side(jobs: list[Callable[[], Any]]) -> list:
+    """``[job() for job in jobs]``, each in a thread of its own, in a copy of the caller's context (its
+    :func:`ahead_of_need` mark): kernels compile and load side by side (XLA releases the GIL); the
+    numbers are those of one after the other. Each job has its place in the list: the threads waiting
+    for a turn to trace go in the order listed (:func:`_turn`)."""
+    def placed(k: int, job: Callable[[], Any]) -> Any:
+        _PLACE.set(_PLACE.get() + (k,))
+        return job()
+
+    with concurrent.futures.ThreadPoolExecutor(len(jobs)) as pool:
+        return [done.result() for done in [pool.submit(contextvars.copy_context().run, placed, k, job)
+                                           for k, job in enumerate(jobs)]]
