@@ -77,3 +77,26 @@ def test_nothing_is_kept_with_the_caches_off(monkeypatch):
     monkeypatch.setenv("DRIVECAL_JAX_CACHE", "0")
     assert _engine._bench_key(dc.default_plan(), dc.DEFAULT_MOTOR, False, 0.0) is None
     assert _engine._kept_bench(None) is None
+
+
+_KEPT = """
+import numpy as np
+import drivecal as dc
+from drivecal.bench import engine_bench, kept_engine_bench
+
+plan, motor = dc.locked_q_step_plan(), dc.DEFAULT_MOTOR
+before = kept_engine_bench(plan, motor)
+bench = engine_bench(plan, motor)
+after = kept_engine_bench(plan, motor)
+print(before is None, after is not None and np.array_equal(after.currents, bench.currents),
+      kept_engine_bench(plan, motor, delay_samples=1.0) is None)
+"""
+
+
+def test_kept_engine_bench_is_the_bench_engine_bench_kept_and_nothing_else(tmp_path):
+    """What a caller (the demo) asks before it runs the engine: None until ``engine_bench`` has kept these inputs'
+    bench, then that bench; other inputs are still not kept."""
+    env = {**os.environ, "DRIVECAL_JAX_CACHE": "1", "DRIVECAL_JAX_CACHE_DIR": str(tmp_path / "cache")}
+    done = subprocess.run([sys.executable, "-c", _KEPT], env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert done.stdout.split() == ["True", "True", "True"]

@@ -321,6 +321,12 @@ def engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
 _KEPT_KIND = "engine-benches-v1"
 
 
+def kept_engine_bench(plan: Plan, motor: MotorParams, *, record_speed: bool = False,
+                      delay_samples: float = 0) -> BenchData | None:
+    """The bench :func:`engine_bench` kept for these arguments in an earlier run, or None: it would run the engine."""
+    return _kept_bench(_bench_key(plan, motor, record_speed, delay_samples))
+
+
 def _bench_key(plan: Plan, motor: MotorParams, record_speed: bool, delay_samples: float) -> str | None:
     """The key of this engine run's bench; None where nothing is kept (caching off, inputs that do not pickle)."""
     from ..model import lowered_cache_directory
