@@ -3,8 +3,9 @@
 Run with PYTHONPATH pointing at the drivecal tree to measure (``bench_workflow.py`` runs it for
 the baseline tree and this one, each on an empty compilation cache). Prints one JSON object:
 
-  phases_s    import (drivecal, JAX, jaxonomy), engine bench (both designs), fit (identifiability,
-              solve), result JSON (diagnostics), figures + HTML (what the command waits for once the
+  phases_s    import (drivecal, JAX, jaxonomy), engine bench (both designs; where the demo compiles its
+              fits' and result documents' kernels beside the engine, that too), fit (both designs:
+              identifiability, solve), result JSON (diagnostics), figures + HTML (what the command waits for once the
               result JSON is built: the page's figures and the PNG files' rest; as the command does,
               the figure workers start at the beginning and the files are queued to them before the
               result JSON is built), wall (the sum);
@@ -70,11 +71,7 @@ def main() -> None:
         t = now
 
     import drivecal.bench  # noqa: F401
-    from drivecal.bench import engine_bench
     from drivecal.demo import _demo as demo
-    from drivecal.fitting import fit
-    from drivecal.physics import DEFAULT_MOTOR
-    from drivecal.plan import default_plan, locked_q_step_plan
 
     import jaxonomy  # noqa: F401  (the engine's import, paid by every demo)
     from drivecal._figures import FigureRenderer
@@ -83,16 +80,18 @@ def main() -> None:
     renderer = FigureRenderer().start()
     phases["import"] = time.perf_counter() - T0
     t = time.perf_counter()
-    truth = DEFAULT_MOTOR
-    guess = demo.datasheet_guess(truth)
-    runs = []
-    for label, plan, seed in (("default plan", default_plan(), 1), ("locked q-step only", locked_q_step_plan(), 2)):
-        clean = engine_bench(plan, truth)
-        mark("engine bench")
-        bench = clean.add_noise(0.02, seed)
-        runs.append(demo.DesignRun(label, plan, clean, bench, fit(bench, guess)))
-        mark("fit")
-    result = demo.DemoResult(truth=truth, guess=guess, noise=0.02, seed=1, default=runs[0], poor=runs[1])
+    # The demo itself (``run_demo``), its stages marked by its progress messages: the engine's runs (and, where
+    # the demo compiles ahead, what the fits and result documents compile beside them), then the two fits.
+    stages = iter(["engine bench", "fit"])
+    entered = []
+
+    def progress(message: str) -> None:
+        if entered:
+            mark(entered[-1])
+        entered.append(next(stages))
+
+    result = demo.run_demo(noise=0.02, seed=1, progress=progress)
+    mark(entered[-1])
     # As `drivecal demo --out` writes its outputs: the figure files queued, the result JSON built (timed apart:
     # the files are drawn meanwhile), then the page and the files' wait.
     build, built = demo.DemoResult.to_dict, []
