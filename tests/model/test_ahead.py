@@ -25,6 +25,7 @@ def no_turn_left():
     """Every test ends with no turn held and no thread waiting (a stuck turn would hang the suite's next test)."""
     yield
     assert ahead._TRACING[0] is None and ahead._COMPILING_AHEAD[0] is None and not ahead._WAITING
+    assert not ahead._EXPECTED
 
 
 def _waiting_thread(work, mark=None, place=()):
@@ -112,3 +113,49 @@ def test_compiled_ahead_leaves_a_failure_to_the_step_that_needs_the_kernel():
 
     with ahead.compiled_ahead(prepare):
         pass
+
+
+def test_work_ahead_of_need_waits_for_work_listed_before_it_that_has_not_asked_yet():
+    """Threads start in the order listed, but the first job may ask for its turn after the second (more Python
+    first): the second waits for it, so that the work listed first (the largest) traces first."""
+    mark, order, asked = ahead.AheadOfNeed(), [], threading.Event()
+
+    def first():
+        asked.wait(60)  # asks after the second has
+        with ahead._turn():
+            order.append("first")
+
+    def second():
+        with ahead._turn():
+            order.append("second")
+
+    def watch_second():
+        _until(lambda: len(ahead._WAITING) == 1)
+        asked.set()
+
+    with ahead.ahead_of_need(mark):
+        watcher = threading.Thread(target=watch_second)
+        watcher.start()
+        ahead.side_by_side([first, second])
+    watcher.join(timeout=60)
+    assert order == ["first", "second"] and not ahead._EXPECTED
+    with ahead.ahead_of_need(mark):  # nested lists: a job's own jobs are not held up by the job
+        assert ahead.side_by_side([lambda: ahead.side_by_side([_in_turn(order, "nested")] * 2)]) == [[None, None]]
+    assert order[2:] == ["nested", "nested"] and not ahead._EXPECTED
+
+
+def test_work_marked_after_first_trace_waits_for_a_needed_program_to_be_traced():
+    """``after_first_trace``: nothing traced ahead of need until the caller's own first program is traced (the
+    caller's trace would otherwise wait behind the largest of them); then as any work ahead of need."""
+    mark, order = ahead.AheadOfNeed(after_first_trace=True), []
+    waiting = _waiting_thread(_in_turn(order, "ahead"), mark, (0,))
+    _until(lambda: len(ahead._WAITING) == 1)
+    waiting.join(timeout=0.3)
+    assert waiting.is_alive() and not order  # the turn is free, but no needed program has been traced
+    _in_turn(order, "needed")()  # the caller's first program, traced
+    waiting.join(timeout=60)
+    assert order == ["needed", "ahead"]
+    late = ahead.AheadOfNeed(after_first_trace=True)
+    late.needed()  # once needed, it waits no more
+    _waiting_thread(_in_turn(order, "needed ahead"), late).join(timeout=60)
+    assert order[-1] == "needed ahead"

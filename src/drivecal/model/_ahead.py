@@ -25,8 +25,11 @@ from typing import Any, Callable
 class AheadOfNeed:
     """The mark of work done ahead of need (:func:`ahead_of_need`), until :meth:`needed` says it is needed now."""
 
-    def __init__(self) -> None:
+    def __init__(self, *, after_first_trace: bool = False) -> None:
         self.is_needed = False
+        #: Whether the work waits to trace until a program needed now has been traced since it was marked.
+        self.after_first_trace = after_first_trace
+        self.needed_traces = _NEEDED_TRACES[0]
 
     def needed(self) -> None:
         """The work is needed now: its programs trace in turns as any other, each compiling beside the next trace.
@@ -55,6 +58,12 @@ _COMPILING_AHEAD: list = [None]
 _WAITING: list[tuple[tuple, int, AheadOfNeed | None]] = []
 #: This thread's turn token (:func:`_turn`), or None.
 _TURN_HELD = threading.local()
+#: How many programs needed at once have been traced in this process (``AheadOfNeed.after_first_trace``).
+_NEEDED_TRACES = [0]
+#: The places of jobs ahead of need listed (:func:`side_by_side`) whose threads have not yet asked for a turn
+#: nor ended: a thread ahead of need listed later waits for them (threads start in order, but a job that asks
+#: later, after more Python, could lose its turn to one listed after it).
+_EXPECTED: list[tuple] = []
 
 
 def _is_needed(mark: AheadOfNeed | None) -> bool:
@@ -69,7 +78,12 @@ def _order(waiting: tuple) -> tuple:
 def _may_go(waiting: tuple) -> bool:
     if _TRACING[0] is not None or min(map(_order, _WAITING)) != _order(waiting):
         return False
-    return _is_needed(waiting[2]) or _COMPILING_AHEAD[0] is None
+    if _is_needed(waiting[2]):
+        return True
+    # ahead of need: not before work listed earlier whose thread has not yet asked (it may be the largest)
+    mark = waiting[2]
+    return (_COMPILING_AHEAD[0] is None and not any(place < waiting[0] for place in _EXPECTED)
+            and not (mark.after_first_trace and _NEEDED_TRACES[0] == mark.needed_traces))
 
 
 @contextlib.contextmanager
@@ -93,15 +107,17 @@ def ahead_of_need(mark: AheadOfNeed | None = None):
 
 
 @contextlib.contextmanager
-def compiled_ahead(prepare: Callable[..., Any], *args: Any):
+def compiled_ahead(prepare: Callable[..., Any], *args: Any, after_first_trace: bool = False):
     """Run ``prepare(*args)`` (compiling a later step's kernels) in a thread during the block, and wait for it.
 
     XLA releases the GIL while it compiles: a first fit compiles its own kernels and its score tests'
     side by side, the score tests' ahead of need (:func:`ahead_of_need`) until the block ends; what is
-    left then is needed at once (:meth:`AheadOfNeed.needed`). A failure in it is left for the later step
-    to meet and report.
+    left then is needed at once (:meth:`AheadOfNeed.needed`). ``after_first_trace``: the work traces
+    nothing until the block has traced a program of its own (where the block's first program is on
+    its path and traces soon: a fit's sensitivity kernel, which would otherwise wait for the largest
+    score test's trace, ~1 s). A failure in it is left for the later step to meet and report.
     """
-    with ahead_of_need(AheadOfNeed()) as mark:
+    with ahead_of_need(AheadOfNeed(after_first_trace=after_first_trace)) as mark:
         def run() -> None:
             with contextlib.suppress(Exception):  # met and reported by the step that needs the kernel
                 prepare(*args)
@@ -124,6 +140,7 @@ def _turn():
     with _TURNS:
         waiting = (_PLACE.get(), id(token), mark)
         _WAITING.append(waiting)
+        _arrived(waiting[0])
         while not _may_go(waiting):
             _TURNS.wait()
         _WAITING.remove(waiting)
@@ -142,6 +159,8 @@ def _traced() -> None:
     with _TURNS:
         if _TRACING[0] is not None and _TRACING[0] is getattr(_TURN_HELD, "token", None):
             _TRACING[0] = None
+            if _is_needed(_AHEAD.get()):
+                _NEEDED_TRACES[0] += 1
             _TURNS.notify_all()
 
 
@@ -162,10 +181,27 @@ def side_by_side(jobs: list[Callable[[], Any]]) -> list:
     :func:`ahead_of_need` mark): kernels compile and load side by side (XLA releases the GIL); the
     numbers are those of one after the other. Each job has its place in the list: the threads waiting
     for a turn to trace go in the order listed (:func:`_turn`)."""
-    def placed(k: int, job: Callable[[], Any]) -> Any:
-        _PLACE.set(_PLACE.get() + (k,))
-        return job()
+    ahead, places = not _is_needed(_AHEAD.get()), [_PLACE.get() + (k,) for k in range(len(jobs))]
 
+    def placed(place: tuple, job: Callable[[], Any]) -> Any:
+        _PLACE.set(place)
+        try:
+            return job()
+        finally:
+            with _TURNS:
+                _arrived(place)
+                _TURNS.notify_all()
+
+    if ahead:
+        with _TURNS:
+            _arrived(_PLACE.get())  # a job listing work of its own: its jobs are what is expected now
+            _EXPECTED.extend(places)
     with concurrent.futures.ThreadPoolExecutor(len(jobs)) as pool:
-        return [done.result() for done in [pool.submit(contextvars.copy_context().run, placed, k, job)
-                                           for k, job in enumerate(jobs)]]
+        return [done.result() for done in [pool.submit(contextvars.copy_context().run, placed, place, job)
+                                           for place, job in zip(places, jobs)]]
+
+
+def _arrived(place: tuple) -> None:
+    """The job at ``place`` has asked for a turn or ended: no longer expected (:data:`_EXPECTED`)."""
+    if place in _EXPECTED:
+        _EXPECTED.remove(place)

@@ -203,7 +203,8 @@ def select_effects(
                                magnetics)
 
     candidates = [e for e in EFFECTS if e not in requested and not (fixed_delay and e == "delay")]
-    with compiled_ahead(prepare_unmodelled_effects, prior, names, experiment, tuple(candidates) + magnetic):
+    with compiled_ahead(prepare_unmodelled_effects, prior, names, experiment, tuple(candidates) + magnetic,
+                        after_first_trace=True):
         cal = fit_currents(experiment, currents, prior, names=names, options=options, source=source)
     cal, fits, decided, last = _add_effects(experiment, currents, prior, cal, candidates + list(magnetic), options,
                                             source, force=magnetics == "saturating",
