@@ -299,6 +299,7 @@ def _add_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParam
     # Where saturation is a candidate, a base fit that did not converge (a saturating machine fitted as
     # linear) still shows in its residuals what is missing: the search goes on from it until a term is in.
     saturation = bool(set(candidates) & set(MAGNETIC_EFFECTS))
+    tested_last: tuple = (None, (), [])  # the fit, the effects and the tests of the loop's latest score tests
     while candidates and (bool(cal.converged) or (saturation and not any(c.included for c in decided.values()))):
         tested = tuple(candidates)
         if not bool(cal.converged) and set(candidates) & set(MAGNETIC_EFFECTS):
@@ -308,6 +309,7 @@ def _add_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParam
         blockers = left_out if bool(cal.converged) and not force else ()
         tests = unmodelled_effects(cal.motor, cal.fit_names, experiment, currents, float(cal.sigma_hat),
                                    effects=tested + blockers)
+        tested_last = (cal, tested + blockers, tests)
         last.update({t["effect"]: t for t in tests if t["effect"] not in blockers})
         if tests[0]["suspected"] and tests[0]["effect"] in blockers:
             # What the fit leaves out explains more than any saturation term would: none stands in for it.
@@ -388,7 +390,11 @@ def _add_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParam
     # final fit (a term suggested only while a larger effect was missing is then no longer suggested).
     candidates += [e for e, c in decided.items() if c.how == "not identifiable" and e not in candidates]
     if candidates and bool(cal.converged):
-        for t in unmodelled_effects(cal.motor, cal.fit_names, experiment, currents, float(cal.sigma_hat),
-                                    effects=tuple(candidates)):
+        if tested_last[0] is cal and tested_last[1] == tuple(candidates):  # the loop's last tests: nothing changed
+            final = tested_last[2]
+        else:
+            final = unmodelled_effects(cal.motor, cal.fit_names, experiment, currents, float(cal.sigma_hat),
+                                       effects=tuple(candidates))
+        for t in final:
             last[t["effect"]] = t
     return cal, fits, decided, last
