@@ -159,3 +159,20 @@ def test_work_marked_after_first_trace_waits_for_a_needed_program_to_be_traced()
     late.needed()  # once needed, it waits no more
     _waiting_thread(_in_turn(order, "needed ahead"), late).join(timeout=60)
     assert order[-1] == "needed ahead"
+
+
+def test_a_program_asked_for_inside_a_turn_does_not_wait_for_the_turn_it_is_in():
+    """A trace that asks for another program (concrete arguments, so it is exported too) takes no second
+    turn: it would wait for its own."""
+    done = []
+
+    def nested():
+        with ahead._turn():
+            with ahead._turn():
+                done.append("inner")
+            done.append("outer")
+
+    thread = threading.Thread(target=nested)
+    thread.start()
+    thread.join(timeout=10)
+    assert done == ["inner", "outer"]

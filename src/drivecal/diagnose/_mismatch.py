@@ -160,16 +160,7 @@ def _one_substep(experiment: Experiment) -> Experiment:
 
 def effect_signatures(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
                       effects: tuple[str, ...]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """The fitted parameters' sensitivity columns (m, n) and each effect's probe columns (m, k) at ``motor``
-    (:func:`_signature_work`'s jobs, run side by side)."""
-    work, assemble = _signature_work(motor, fit_names, experiment, effects)
-    return assemble(side_by_side(work))
-
-
-def _signature_work(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
-                    effects: tuple[str, ...]) -> tuple[list[Callable[[], np.ndarray]], Callable]:
-    """The jobs of :func:`effect_signatures`, the probes' first (delay, dead time, offsets: the largest first)
-    and the fitted columns' last, and the function of their results that is its value. The fitted parameters' sensitivity columns (m, n) and each effect's probe columns (m, k) at ``motor``.
+    """The fitted parameters' sensitivity columns (m, n) and each effect's probe columns (m, k) at ``motor``.
 
     ``m`` = 2 x samples (i_d and i_q interleaved per sample, as ``currents.reshape(-1)``). The fitted
     columns come from the fit's own sensitivity kernel (``identify.sensitivity_jacobian``: the one its
@@ -185,6 +176,14 @@ def _signature_work(motor: MotorParams, fit_names: tuple[str, ...], experiment: 
     other effects' terms are zero at the nominal values: no dead-time voltage at ``v_dead = 0``, no
     second sub-interval at a whole-sample delay), equal to float64 rounding.
     """
+    work, assemble = _signature_work(motor, fit_names, experiment, effects)
+    return assemble(side_by_side(work))
+
+
+def _signature_work(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
+                    effects: tuple[str, ...]) -> tuple[list[Callable[[], np.ndarray]], Callable]:
+    """The jobs of :func:`effect_signatures`, the probes' first (delay, dead time, offsets: the largest first)
+    and the fitted columns' last, and the function of their results that is its value."""
     m = 2 * experiment.num_samples
     names = tuple(fit_names)
     groups = {e: tuple(n for n in _ALL_EFFECTS[e][1] if n not in names) for e in effects}

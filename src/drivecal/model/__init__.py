@@ -11,8 +11,8 @@ from ._lowered_cache import (LEGACY_EMITTERS, RUN_ONCE, call as cached_call, dir
                              keep_result, kept_result, result_key)
 from ._steps import delay_inputs
 
-__all__ = ["Experiment", "LEGACY_EMITTERS", "RUN_ONCE", "SEGMENT_KINDS", "ahead_of_need", "cached_call", "compiled_ahead",
-           "current_parts", "delay_inputs", "in_rotor_frame", "join_current_parts", "keep_result", "kept_result",
-           "lowered_cache_directory", "measured_currents", "model_experiment", "predict_current_parts",
+__all__ = ["Experiment", "LEGACY_EMITTERS", "RUN_ONCE", "SEGMENT_KINDS", "ahead_of_need", "cached_call",
+           "compiled_ahead", "current_parts", "delay_inputs", "in_rotor_frame", "join_current_parts", "keep_result",
+           "kept_result", "lowered_cache_directory", "measured_currents", "model_experiment", "predict_current_parts",
            "predict_currents", "predicted_currents", "result_key", "rk4_step", "saturation_columns", "side_by_side",
            "simulate_states", "stack_experiments", "with_experiment_delay"]

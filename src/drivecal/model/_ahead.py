@@ -136,6 +136,9 @@ def compiled_ahead(prepare: Callable[..., Any], *args: Any, after_first_trace: b
 def _turn():
     """Wait for this thread's turn to trace a program (:mod:`the rules <drivecal.model._ahead>`); the turn
     ends with the block, or at :func:`_traced` where the work is needed now."""
+    if getattr(_TURN_HELD, "token", None) is not None:  # a program asked for inside this thread's own turn
+        yield
+        return
     mark, token = _AHEAD.get(), object()
     with _TURNS:
         waiting = (_PLACE.get(), id(token), mark)
