@@ -24,7 +24,7 @@ def _until(condition, timeout: float = 60.0) -> None:
 def no_turn_left():
     """Every test ends with no turn held and no thread waiting (a stuck turn would hang the suite's next test)."""
     yield
-    assert ahead._TRACING[0] is None and ahead._COMPILING_AHEAD[0] is None and not ahead._WAITING
+    assert ahead._TRACING[0] is None and ahead._AHEAD_IN_TURN[0] is None and not ahead._WAITING
     assert not ahead._EXPECTED
 
 
@@ -71,7 +71,7 @@ def test_work_ahead_of_need_compiles_in_its_turn_but_never_holds_up_a_needed_tra
     mark, order = ahead.AheadOfNeed(), []
     with ahead.ahead_of_need(mark), ahead._turn():
         ahead._traced()  # traced; compiling, and still in its turn
-        assert ahead._TRACING[0] is None and ahead._COMPILING_AHEAD[0] is not None
+        assert ahead._TRACING[0] is None and ahead._AHEAD_IN_TURN[0] is not None
         other = _waiting_thread(_in_turn(order, "ahead"), mark, (1,))
         needed = _waiting_thread(_in_turn(order, "needed"))
         needed.join(timeout=60)
@@ -87,7 +87,7 @@ def test_once_needed_a_traced_program_gives_up_its_turn_to_the_next_trace():
     mark = ahead.AheadOfNeed()
     mark.needed()
     with ahead.ahead_of_need(mark), ahead._turn():
-        assert ahead._TRACING[0] is not None and ahead._COMPILING_AHEAD[0] is None
+        assert ahead._TRACING[0] is not None and ahead._AHEAD_IN_TURN[0] is None
         ahead._traced()
         assert ahead._TRACING[0] is None
 

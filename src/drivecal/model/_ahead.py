@@ -40,8 +40,8 @@ class AheadOfNeed:
         """
         with _TURNS:
             self.is_needed = True
-            if _COMPILING_AHEAD[0] is not None and _COMPILING_AHEAD[0][1] is self:
-                _COMPILING_AHEAD[0] = None
+            if _AHEAD_IN_TURN[0] is not None and _AHEAD_IN_TURN[0][1] is self:
+                _AHEAD_IN_TURN[0] = None
             _TURNS.notify_all()
 
 
@@ -52,8 +52,8 @@ _PLACE: contextvars.ContextVar[tuple] = contextvars.ContextVar("drivecal_place",
 _TURNS = threading.Condition()
 #: The token of the thread tracing now (:func:`_turn`), or None.
 _TRACING: list = [None]
-#: The (token, mark) of the thread whose work ahead of need is in its turn (tracing or compiling), or None.
-_COMPILING_AHEAD: list = [None]
+#: The (token, mark) of the thread whose work ahead of need holds its turn (tracing, then compiling), or None.
+_AHEAD_IN_TURN: list = [None]
 #: The threads waiting for a turn: (their place in the work, a number of their own, their mark or None).
 _WAITING: list[tuple[tuple, int, AheadOfNeed | None]] = []
 #: This thread's turn token (:func:`_turn`), or None.
@@ -82,7 +82,7 @@ def _may_go(waiting: tuple) -> bool:
         return True
     # ahead of need: not before work listed earlier whose thread has not yet asked (it may be the largest)
     mark = waiting[2]
-    return (_COMPILING_AHEAD[0] is None and not any(place < waiting[0] for place in _EXPECTED)
+    return (_AHEAD_IN_TURN[0] is None and not any(place < waiting[0] for place in _EXPECTED)
             and not (mark.after_first_trace and _NEEDED_TRACES[0] == mark.needed_traces))
 
 
@@ -134,8 +134,8 @@ def compiled_ahead(prepare: Callable[..., Any], *args: Any, after_first_trace: b
 
 @contextlib.contextmanager
 def _turn():
-    """Wait for this thread's turn to trace a program (:mod:`the rules <drivecal.model._ahead>`); the turn
-    ends with the block, or at :func:`_traced` where the work is needed now."""
+    """Wait for this thread's turn to trace a program (the rules: this module's docstring); the turn ends
+    with the block, or at :func:`_traced` where the work is needed now."""
     if getattr(_TURN_HELD, "token", None) is not None:  # a program asked for inside this thread's own turn
         yield
         return
@@ -149,7 +149,7 @@ def _turn():
         _WAITING.remove(waiting)
         _TRACING[0] = _TURN_HELD.token = token
         if not _is_needed(mark):
-            _COMPILING_AHEAD[0] = (token, mark)
+            _AHEAD_IN_TURN[0] = (token, mark)
     try:
         yield
     finally:
@@ -158,7 +158,8 @@ def _turn():
 
 def _traced() -> None:
     """This thread's program is traced and lowered; it compiles now, while the next program traces (work
-    ahead of need keeps its turn through the compilation, until it is needed)."""
+    ahead of need keeps its turn through the compilation, until it is needed). Counts a needed program's
+    trace (``AheadOfNeed.after_first_trace``)."""
     with _TURNS:
         if _TRACING[0] is not None and _TRACING[0] is getattr(_TURN_HELD, "token", None):
             _TRACING[0] = None
@@ -173,8 +174,8 @@ def _end_turn() -> None:
     with _TURNS:
         if token is not None and _TRACING[0] is token:
             _TRACING[0] = None
-        if token is not None and _COMPILING_AHEAD[0] is not None and _COMPILING_AHEAD[0][0] is token:
-            _COMPILING_AHEAD[0] = None
+        if token is not None and _AHEAD_IN_TURN[0] is not None and _AHEAD_IN_TURN[0][0] is token:
+            _AHEAD_IN_TURN[0] = None
         _TURNS.notify_all()
     _TURN_HELD.token = None
 
