@@ -33,8 +33,8 @@ import jax
 import numpy as np
 
 from .._stats import chi2_sf
-from ..model import (Experiment, ahead_of_need, model_experiment, predicted_currents, saturation_columns,
-                     side_by_side, with_experiment_delay)
+from ..model import (Experiment, ahead_of_need, model_experiment, outputs_unused, predicted_currents,
+                     side_by_side, start_saturation_columns, with_experiment_delay)
 from ..identify import sensitivity_jacobian
 from ..physics import BRIDGE, EXPONENT_CANDIDATES, MAGNETIC, MotorParams, is_saturating, parameter_values
 
@@ -125,21 +125,21 @@ def score_test(residual: np.ndarray, signature: np.ndarray, fitted: np.ndarray, 
 
 def _magnetic_scores(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
                      effects: tuple[str, ...], residual: np.ndarray, sigma_hat: float,
-                     fitted: np.ndarray | None = None) -> dict[str, tuple]:
+                     fitted: np.ndarray | None = None, started: Callable[[], np.ndarray] | None = None
+                     ) -> dict[str, tuple]:
     """Per magnetic effect, ``(score, motor at its best exponents, number of candidates)``.
 
     Every candidate of a term's exponents (``physics.EXPONENT_CANDIDATES``) is tested against the
     fitted parameters' columns ``fitted`` (m, n), computed here when not given (the bench effects'
     score tests have them: one sensitivity kernel fewer to compile); each term keeps the candidate whose
     signature has the largest statistic. The candidates' columns come from one batched rollout
-    (``model.saturation_columns``).
+    (``model.saturation_columns``; ``started``: that rollout's, dispatched by :func:`_start_magnetic`).
     """
     if not effects:
         return {}
     if fitted is None:
         fitted, _ = effect_signatures(motor, fit_names, experiment, ())
-    probe = model_experiment(experiment, motor, MAGNETIC)
-    columns = saturation_columns(motor, _one_substep(probe))
+    columns = (started or _start_magnetic(motor, experiment))()
     best: dict[str, tuple] = {}
     for e in effects:
         term = _ALL_EFFECTS[e][1][0]
@@ -149,6 +149,11 @@ def _magnetic_scores(motor: MotorParams, fit_names: tuple[str, ...], experiment:
             if e not in best or not np.isfinite(best[e][0].statistic) or score.statistic > best[e][0].statistic:
                 best[e] = (score, motor.replace(**dict(zip(names, candidate))), len(values))
     return best
+
+
+def _start_magnetic(motor: MotorParams, experiment: Experiment) -> Callable[[], np.ndarray]:
+    """The magnetic candidates' columns at ``motor`` (``model.saturation_columns``), their program dispatched now."""
+    return start_saturation_columns(motor, _one_substep(model_experiment(experiment, motor, MAGNETIC)))
 
 
 def _one_substep(experiment: Experiment) -> Experiment:
@@ -224,7 +229,7 @@ _PREPARED: set = set()
 
 def prepare_unmodelled_effects(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
                                effects: tuple[str, ...]) -> None:
-    """Trace and compile now the kernels :func:`unmodelled_effects` will run (each run once here, discarded).
+    """Trace and compile now (or load) the kernels :func:`unmodelled_effects` will run; none of them runs here.
 
     The score tests' sensitivity columns (:func:`effect_signatures`, and the magnetic candidates'
     where ``effects`` name them and the motor is linear) and the residuals' prediction are seconds
@@ -244,12 +249,12 @@ def prepare_unmodelled_effects(motor: MotorParams, fit_names: tuple[str, ...], e
         motor = with_experiment_delay(motor.with_vector(tuple(fit_names), fitted), experiment)
         base = model_experiment(experiment, motor, tuple(fit_names))
         # What unmodelled_effects runs after the fit: kept kernels load side by side, new ones compile one at a
-        # time (model.ahead_of_need), the largest first.
+        # time (model.ahead_of_need), the largest first; none runs (model.outputs_unused).
         work = _signature_work(motor, tuple(fit_names), base, plain)[0] if plain else []
         if magnetic:
-            work.append(lambda: saturation_columns(motor, _one_substep(model_experiment(base, motor, MAGNETIC))))
+            work.append(lambda: _start_magnetic(motor, base)())
         work.append(lambda: predicted_currents(motor, base))
-        with ahead_of_need():
+        with ahead_of_need(), outputs_unused():
             side_by_side(work)
 
 
@@ -294,19 +299,23 @@ def unmodelled_effects(
     residual = y - np.asarray(predicted, dtype=float).reshape(-1)
     plain = tuple(e for e in effects if e not in MAGNETIC_EFFECTS)
     magnetic = tuple(e for e in effects if e in MAGNETIC_EFFECTS)
-    scores, fitted = {}, None
-    if plain:
-        fitted, columns = effect_signatures(motor, fit_names, base, plain)
-        scores = {e: (score_test(residual, columns[e], fitted, sigma_hat), motor, 1) for e in plain}
+    at = motor  # where the magnetic candidates are tested
     if magnetic and not is_saturating(motor):
         # The law's coefficients are per unit of i_ref: at the data's peak current (as the selection sets
         # it) the candidates' signatures are of order one; at an arbitrary i_ref a step of 1e-4 in a
         # coefficient could bend the law past monotone at the data's currents.
         peak = float(np.max(np.abs(np.asarray(currents, dtype=float)), initial=0.0))
         if np.isfinite(peak) and peak > 0.0:
-            motor = motor.replace(i_ref=float(f"{peak:.2g}"))
+            at = motor.replace(i_ref=float(f"{peak:.2g}"))
+    # The candidates' rollout dispatched first: XLA runs it while the bench effects' tests are computed.
+    started = _start_magnetic(at, base) if magnetic else None
+    scores, fitted = {}, None
+    if plain:
+        fitted, columns = effect_signatures(motor, fit_names, base, plain)
+        scores = {e: (score_test(residual, columns[e], fitted, sigma_hat), motor, 1) for e in plain}
+    motor = at
     # The fitted columns do not depend on i_ref (a linear motor's currents do not): the plain tests' serve.
-    scores.update(_magnetic_scores(motor, fit_names, base, magnetic, residual, sigma_hat, fitted))
+    scores.update(_magnetic_scores(motor, fit_names, base, magnetic, residual, sigma_hat, fitted, started))
     threshold = ALPHA / len(effects)
     delay = float(motor.delay)
     out = []

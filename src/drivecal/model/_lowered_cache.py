@@ -32,6 +32,8 @@ call.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import functools
 import hashlib
 import logging
@@ -75,6 +77,26 @@ LEGACY_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
 #: predicted currents, the demo's 15.6 -> 14.8 s with the Jacobian too (A/B). The dead-time model's
 #: programs keep level 2 (the inverter bench's warm fit took 0.5 s longer with its solves at level 0).
 RUN_ONCE = {"xla_backend_optimization_level": 0}
+
+#: Whether the calls in this context only get their programs ready (:func:`outputs_unused`).
+_OUTPUTS_UNUSED: contextvars.ContextVar[bool] = contextvars.ContextVar("drivecal_outputs_unused", default=False)
+
+
+@contextlib.contextmanager
+def outputs_unused():
+    """Calls in this context get their programs ready (loaded, or traced and compiled) and run none whose
+    compiled kernel is at hand: they return zeros of its outputs' shapes and dtypes.
+
+    For work whose results are discarded, done only so that the kernels are ready when needed (a fit's score
+    tests compiled ahead beside it): a warm ``drivecal fit examples/bench.csv`` ran each of its six kernels
+    once more for nothing. Threads started inside inherit it where they run in a copy of the context.
+    """
+    token = _OUTPUTS_UNUSED.set(True)
+    try:
+        yield
+    finally:
+        _OUTPUTS_UNUSED.reset(token)
+
 
 #: The plain calls jitted with compile options (:func:`_plain`).
 _PLAIN: dict[tuple, Callable] = {}
@@ -474,6 +496,9 @@ def call(fn: Callable, name: str, *args: Any, compiler_options: dict | None = No
     if entry is None:
         return _plain(fn, compiler_options, static)(*args, **static)
     run, out_tree = entry
+    if _OUTPUTS_UNUSED.get() and isinstance(run, jax.stages.Compiled):
+        return jax.tree_util.tree_unflatten(out_tree, [np.zeros(a.shape, a.dtype) for a in
+                                                       jax.tree_util.tree_leaves(run.out_info)])
     try:
         out = run(*leaves)
     except Exception as exc:  # the kept program does not fit after all: never use it again here

@@ -8,13 +8,14 @@ rollout, all in one compiled, batched program.
 from __future__ import annotations
 
 import dataclasses
+from typing import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ._experiment import Experiment
-from ._lowered_cache import LEGACY_EMITTERS, call as cached_call
+from ._lowered_cache import LEGACY_EMITTERS, RUN_ONCE, call as cached_call
 from ._rollout import predict_currents
 from ..physics import EXPONENT_CANDIDATES, MAGNETIC, MotorParams
 
@@ -34,6 +35,12 @@ def saturation_columns(motor: MotorParams, experiment: Experiment) -> np.ndarray
     call: the score tests of ``--magnetics auto`` then cost one forward program, not a Jacobian per
     candidate (``diagnose``). ``experiment`` must have ``saturating`` set.
     """
+    return start_saturation_columns(motor, experiment)()
+
+
+def start_saturation_columns(motor: MotorParams, experiment: Experiment) -> Callable[[], np.ndarray]:
+    """:func:`saturation_columns` started: its program dispatched (XLA runs it while the caller goes on); the
+    function returned waits for it and gives the columns."""
     rows = []
     for name in MAGNETIC:
         exponents, values = EXPONENT_CANDIDATES[name]
@@ -45,15 +52,23 @@ def saturation_columns(motor: MotorParams, experiment: Experiment) -> np.ndarray
     # Stacked on the host (NumPy): one device array per leaf, not one per leaf and row (~0.3 s of a warm fit).
     batch = jax.tree_util.tree_map(lambda *xs: np.stack([np.asarray(x, dtype=np.float64) for x in xs]), *rows)
     # The model's steps as loops (Experiment.rolled): the same columns from a program half the size. XLA's
-    # legacy emitters: a cold fit of examples/bench.csv 9.5 -> 8.7 s (median of 2), a warm one as fast, the
-    # same columns to the last bit there.
-    out = np.asarray(cached_call(_batched_currents, "saturation_columns", batch,
-                                 dataclasses.replace(experiment, rolled=True), compiler_options=LEGACY_EMITTERS))
-    count = len(EXPONENT_CANDIDATES[MAGNETIC[0]][1])
-    out = out.reshape(len(MAGNETIC), count, 2, *out.shape[1:])
-    return (out[:, :, 0] - out[:, :, 1]) / (2.0 * SATURATION_STEP)
+    # legacy emitters, and without the dead time's rollout LLVM's level 0 (model.RUN_ONCE): on
+    # examples/bench.csv the program compiles in 0.2 s against 0.6 s and runs in ~0.1 s against ~0.04 s
+    # (the score tests' other work goes on meanwhile, as the call is dispatched before it: diagnose), a
+    # cold fit 5.2 -> 4.7 s (median of 5). The columns move in the ~12th digit; no printed one.
+    options = LEGACY_EMITTERS if experiment.dead_time else {**LEGACY_EMITTERS, **RUN_ONCE}
+    out = cached_call(_batched_currents, "saturation_columns", batch, dataclasses.replace(experiment, rolled=True),
+                      compiler_options=options)
+
+    def columns() -> np.ndarray:
+        count = len(EXPONENT_CANDIDATES[MAGNETIC[0]][1])
+        found = np.asarray(out)
+        found = found.reshape(len(MAGNETIC), count, 2, *found.shape[1:])
+        return (found[:, :, 0] - found[:, :, 1]) / (2.0 * SATURATION_STEP)
+
+    return columns
 
 
-@jax.jit  # compiled with LEGACY_EMITTERS by cached_call, cache or no cache
+@jax.jit  # compiled with its options by cached_call, cache or no cache
 def _batched_currents(motors: MotorParams, experiment: Experiment) -> jnp.ndarray:
     return jax.vmap(predict_currents, in_axes=(0, None))(motors, experiment)
