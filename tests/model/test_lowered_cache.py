@@ -126,6 +126,40 @@ def test_a_kernel_the_compilation_cache_supplied_is_kept_with_the_cache_s_bytes(
     assert done.returncode == 0 and "kept and ran" in done.stdout, done.stdout + done.stderr
 
 
+_LAPACK_SCRIPT = """
+import sys
+import jax, jax.numpy as jnp, numpy as np
+from drivecal.model import _lowered_cache as traced
+
+a = np.array([[4.0, 1.0], [1.0, 3.0]])
+solve = jax.jit(lambda a: jnp.linalg.solve(a, a[:, 0]))
+sine = jax.jit(lambda a: jnp.sin(a) * 2.0)
+if sys.argv[1] == "keep":
+    traced.call(solve, "solve", a), traced.call(sine, "sine", a)
+    print("kept")
+else:  # a new process: the program without LAPACK loads and runs without it, the one with it initialises it
+    np.testing.assert_allclose(np.asarray(traced.call(sine, "sine", a)), np.sin(a) * 2.0)
+    assert traced._initialize_lapack.cache_info().currsize == 0, "LAPACK initialised for a program without it"
+    np.testing.assert_allclose(np.asarray(traced.call(solve, "solve", a)), [1.0, 0.0], atol=1e-15)
+    assert traced._initialize_lapack.cache_info().currsize == 1
+    print("ran")
+"""
+
+
+def test_a_kept_program_initialises_lapack_where_it_calls_it_and_only_there(tmp_path):
+    """A kept kernel calling LAPACK crashes a process whose LAPACK kernels are not initialised (jax#29610); one that
+    calls none loads without them (a warm fit: ~0.1 s of importing SciPy's BLAS)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "DRIVECAL_JAX_CACHE": "1", "DRIVECAL_JAX_CACHE_DIR": str(tmp_path)}
+    for step, said in (("keep", "kept"), ("run", "ran")):
+        done = subprocess.run([sys.executable, "-c", _LAPACK_SCRIPT, step], env=env, capture_output=True, text=True,
+                              timeout=300)
+        assert done.returncode == 0 and said in done.stdout, done.stdout + done.stderr
+
+
 def test_a_program_jitted_with_compiler_options_is_kept_and_compiled_with_them(store, monkeypatch):
     """The exported program does not carry the jit's XLA options: the kept entry compiles with them again,
     under a key of its own."""
@@ -356,15 +390,15 @@ def test_fingerprint_covers_every_source_file_of_the_package(tmp_path, monkeypat
     copy = tmp_path / "drivecal"
     shutil.copytree(package, copy, ignore=shutil.ignore_patterns("__pycache__"))
     monkeypatch.setattr(traced, "package_root", lambda: copy)
-    traced._fingerprint.cache_clear()
+    traced._read_fingerprint.cache_clear()
     try:
         before = traced._fingerprint()
         deep = copy / "fitting" / "_fit.py"
         deep.write_text(deep.read_text() + "\n# edited\n")
-        traced._fingerprint.cache_clear()
+        traced._read_fingerprint.cache_clear()
         assert traced._fingerprint() != before
     finally:
-        traced._fingerprint.cache_clear()
+        traced._read_fingerprint.cache_clear()
 
 
 def test_python_floats_and_float64_arrays_share_one_compiled_program(monkeypatch):
