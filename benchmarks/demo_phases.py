@@ -61,6 +61,14 @@ monitoring.register_event_listener(lambda event, **_: EVENTS.update([event.rspli
 
 
 def main() -> None:
+    import gc
+    import inspect
+
+    import drivecal.cli._common as program
+
+    # The garbage collector as the tree's `drivecal` program sets it (older trees left Python's default).
+    if hasattr(program, "YOUNG_GENERATION"):
+        gc.set_threshold(program.YOUNG_GENERATION, *gc.get_threshold()[1:])
     phases = {}
     t = time.perf_counter()
 
@@ -105,6 +113,10 @@ def main() -> None:
 
     demo.DemoResult.to_dict = to_dict
     out = tempfile.mkdtemp(prefix="drivecal-phases-")
+    import drivecal.cli._demo as command
+
+    if "gc.freeze()" in inspect.getsource(command):  # as the tree's `drivecal demo --out` does before it writes
+        gc.freeze()
     try:
         demo.write_demo_outputs(result, out, renderer)
         renderer.close()

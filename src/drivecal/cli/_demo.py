@@ -91,6 +91,7 @@ def demo(out_dir, noise, seed, as_json):
     if out_dir is not None:
         _check_out(out_dir, "--out", directory=True)
     import contextlib
+    import gc
 
     from ..demo import run_demo, write_demo_outputs
 
@@ -105,6 +106,10 @@ def demo(out_dir, noise, seed, as_json):
         result = run_demo(noise=noise, seed=seed, progress=lambda m: status.update(m) if not as_json else None)
         if out_dir is not None:
             status.update("writing figures and report.json")
+            # The objects of the bench and the fits (traced programs among them) leave the garbage collector's
+            # view: the figures' and the page's allocations no longer set off collections over them (the cold
+            # demo's figures and page: 1.02-1.07 -> 0.98-1.01 s).
+            gc.freeze()
             written = write_demo_outputs(result, out_dir, renderer)
     if as_json:
         click.echo(json.dumps(result.to_dict(), indent=2))
