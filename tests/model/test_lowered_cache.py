@@ -19,7 +19,7 @@ import pytest
 
 import drivecal as dc
 from drivecal.model import _lowered_cache as traced
-from drivecal.model import ahead_of_need, side_by_side
+from drivecal.model import ahead_of_need, outputs_unused, side_by_side
 
 _DIRECTORY = traced.directory
 
@@ -71,14 +71,14 @@ def test_a_kernel_compiled_here_is_kept_and_a_new_process_runs_it_without_loweri
 def test_calls_whose_outputs_are_unused_get_their_kernel_ready_and_run_none(store, monkeypatch):
     x, y = np.linspace(0.0, 3.0, 50), np.arange(4.0)
     plain = _f(x, y, scale=2.5)
-    with traced.outputs_unused():  # compiled here, not run: zeros of the outputs' shapes and dtypes
+    with outputs_unused():  # compiled here, not run: zeros of the outputs' shapes and dtypes
         ready = traced.call(_f, "f", x, y, scale=2.5)
     assert ready["a"].shape == (50,) and ready["a"].dtype == np.float64 and not ready["a"].any()
     assert ready["b"][0].shape == (4,) and ready["b"][1] is None
     monkeypatch.setattr(traced, "_export", lambda *a, **k: pytest.fail("traced again"))
     np.testing.assert_array_equal(traced.call(_f, "f", x, y, scale=2.5)["a"], plain["a"])  # ready: runs now
     monkeypatch.setattr(traced, "_LOADED", {})  # a new process: loads the kept kernel and runs none of it
-    with traced.outputs_unused():
+    with outputs_unused():
         assert not traced.call(_f, "f", x, y, scale=2.5)["b"][0].any()
     np.testing.assert_array_equal(traced.call(_f, "f", x, y, scale=2.5)["b"][0], plain["b"][0])
 

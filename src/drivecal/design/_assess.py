@@ -15,10 +15,9 @@ import dataclasses
 import math
 from typing import Any
 
-import jax
 import numpy as np
 
-from ..model import Experiment, model_experiment, simulate_states
+from ..model import Experiment, model_experiment, simulated_states
 from ..identify import Identifiability, assess_identifiability
 from ..physics import ESTIMATED, MotorParams, flux_of_currents, is_saturating
 from ..plan import Plan
@@ -121,10 +120,6 @@ def _num(x: float) -> float | None:
 
 
 
-#: One compile per plan length, not one per motor (auto-plan judges many motors).
-_simulate_states = jax.jit(simulate_states)
-
-
 def _torque(motor: MotorParams, i_d: np.ndarray, i_q: np.ndarray) -> np.ndarray:
     """Electrical torque (N*m) at the currents: the flux linkages' on a saturating motor, else the dq law's."""
     p = float(motor.pole_pairs)
@@ -136,7 +131,7 @@ def _torque(motor: MotorParams, i_d: np.ndarray, i_q: np.ndarray) -> np.ndarray:
 
 def predict_segments(plan: Plan, motor: MotorParams) -> tuple[SegmentPrediction, ...]:
     """Simulate the plan on ``motor`` (drivecal's forward model) and summarise each segment."""
-    states = np.asarray(_simulate_states(motor, model_experiment(Experiment.from_plan(plan), motor, ())))
+    states = simulated_states(motor, model_experiment(Experiment.from_plan(plan), motor, ()))
     torque = np.abs(_torque(motor, states[:, 0], states[:, 1]))
     out, k = [], 0
     for seg in plan.segments:

@@ -209,3 +209,24 @@ def _arrived(place: tuple) -> None:
     """The job at ``place`` has asked for a turn or ended: no longer expected (:data:`_EXPECTED`)."""
     if place in _EXPECTED:
         _EXPECTED.remove(place)
+
+
+#: Whether the calls in this context only get their programs ready (:func:`outputs_unused`).
+_OUTPUTS_UNUSED: contextvars.ContextVar[bool] = contextvars.ContextVar("drivecal_outputs_unused", default=False)
+
+
+@contextlib.contextmanager
+def outputs_unused():
+    """Programs called in this context through the on-disk cache (``model.cached_call``) are made ready (loaded,
+    or traced and compiled) and none whose compiled kernel is at hand runs: zeros of its outputs' shapes and
+    dtypes are returned.
+
+    For work whose results are discarded, done only so that the kernels are ready when needed (a fit's score
+    tests compiled ahead beside it): a warm ``drivecal fit examples/bench.csv`` ran each of its six kernels
+    once more for nothing. Threads started inside inherit it where they run in a copy of the context.
+    """
+    token = _OUTPUTS_UNUSED.set(True)
+    try:
+        yield
+    finally:
+        _OUTPUTS_UNUSED.reset(token)

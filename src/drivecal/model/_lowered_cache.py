@@ -32,8 +32,6 @@ call.
 
 from __future__ import annotations
 
-import contextlib
-import contextvars
 import functools
 import hashlib
 import logging
@@ -49,7 +47,7 @@ from typing import Any, Callable
 import jax
 import numpy as np
 
-from ._ahead import _traced, _turn
+from ._ahead import _OUTPUTS_UNUSED, _traced, _turn
 
 logger = logging.getLogger(__name__)
 
@@ -77,26 +75,6 @@ LEGACY_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
 #: predicted currents, the demo's 15.6 -> 14.8 s with the Jacobian too (A/B). The dead-time model's
 #: programs keep level 2 (the inverter bench's warm fit took 0.5 s longer with its solves at level 0).
 RUN_ONCE = {"xla_backend_optimization_level": 0}
-
-#: Whether the calls in this context only get their programs ready (:func:`outputs_unused`).
-_OUTPUTS_UNUSED: contextvars.ContextVar[bool] = contextvars.ContextVar("drivecal_outputs_unused", default=False)
-
-
-@contextlib.contextmanager
-def outputs_unused():
-    """Calls in this context get their programs ready (loaded, or traced and compiled) and run none whose
-    compiled kernel is at hand: they return zeros of its outputs' shapes and dtypes.
-
-    For work whose results are discarded, done only so that the kernels are ready when needed (a fit's score
-    tests compiled ahead beside it): a warm ``drivecal fit examples/bench.csv`` ran each of its six kernels
-    once more for nothing. Threads started inside inherit it where they run in a copy of the context.
-    """
-    token = _OUTPUTS_UNUSED.set(True)
-    try:
-        yield
-    finally:
-        _OUTPUTS_UNUSED.reset(token)
-
 
 #: The plain calls jitted with compile options (:func:`_plain`).
 _PLAIN: dict[tuple, Callable] = {}

@@ -439,6 +439,18 @@ def predicted_currents(motor: MotorParams, experiment: Experiment) -> np.ndarray
 _predict_compiled = jax.jit(predict_currents)
 
 
+def simulated_states(motor: MotorParams, experiment: Experiment) -> np.ndarray:
+    """:func:`simulate_states` compiled, for host code: all four states at every sample, a numpy array (M, 4).
+
+    One compiled call whose trace is kept on disk (``cached_call``), compiled with JAX's defaults (the numbers
+    of ``jax.jit(simulate_states)``): a warm ``drivecal plan`` traced and lowered each plan it judged again.
+    """
+    return np.asarray(cached_call(_states_compiled, "simulate_states", motor, experiment))
+
+
+_states_compiled = jax.jit(simulate_states)
+
+
 def measured_currents(states: jnp.ndarray, motor: MotorParams, experiment: Experiment) -> jnp.ndarray:
     """``[i_d, i_q]`` (A) the sensors report for simulated ``states``: the currents plus offsets, (M, 2).
 
