@@ -19,6 +19,7 @@ reached on each axis).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any
 
@@ -26,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..model import cached_call, side_by_side
 from ..physics import flux_of_currents, incremental_inductances
 
 #: The maps, in the order of :attr:`FluxMaps.maps`, and their units.
@@ -164,25 +166,40 @@ def _chords(motor: Any, i_d: jnp.ndarray, i_q: jnp.ndarray) -> jnp.ndarray:
     return jnp.stack([(psi_d - motor.lambda_m) / i_d, psi_q / i_q])
 
 
-def _with_band(f, cal: Any, *args) -> tuple[np.ndarray, np.ndarray]:
-    """``f(motor, *args)`` at the estimate and its delta-method SE over the fitted names (NaN where undefined)."""
+def _with_band(kind: str, cal: Any, *args) -> tuple[np.ndarray, np.ndarray]:
+    """The maps (``kind`` ``"maps"``: :func:`_maps`) or the chords (``"chords"``: :func:`_chords`) of ``cal.motor``
+    at ``args``, and their delta-method SE over the fitted names (NaN where undefined)."""
     names = tuple(cal.fit_names)
-    theta = jnp.asarray([float(cal.estimate[cal.names.index(n)]) for n in names])
-
-    def g(t):
-        out = f(cal.motor.with_vector(names, t), *args)
-        return out, out
-
+    args = tuple(np.asarray(x, dtype=float) for x in args)
     if not names:
-        value = np.asarray(g(theta)[0])
+        value = np.asarray(_KINDS[kind](cal.motor, *args))
         return value, np.zeros_like(value)
-    jac, value = jax.jacfwd(g, has_aux=True)(theta)  # the value and its gradient in one pass
-    value = np.asarray(value)
-    jac = np.asarray(jac).reshape(value.size, len(names))
+    theta = np.asarray([float(cal.estimate[cal.names.index(n)]) for n in names], dtype=float)
+    jac, value = (np.asarray(x) for x in cached_call(_value_and_jacobian, "flux_map_band", cal.motor, theta, *args,
+                                                     kind=kind, names=names))
+    jac = jac.reshape(value.size, len(names))
     cov = np.asarray(cal.covariance, dtype=float)
     with np.errstate(invalid="ignore"):
         var = np.einsum("ij,jk,ik->i", jac, cov, jac)
     return value, np.sqrt(np.maximum(var, 0.0)).reshape(value.shape)
+
+
+_KINDS = {"maps": _maps, "chords": _chords}
+
+
+@functools.partial(jax.jit, static_argnames=("kind", "names"))
+def _value_and_jacobian(motor: Any, theta: jnp.ndarray, *args: Any, kind: str, names: tuple[str, ...]) -> tuple:
+    """The Jacobian of ``_KINDS[kind](motor, *args)`` along ``names`` at ``theta`` and its value, in one pass.
+
+    One compiled program, kept on disk (``model.cached_call``): the saturating law's inversion makes it large
+    (examples' SyRM: ~10 s to compile, ~1.3 s to load; the maps and the chords in one program took as long
+    as both), and differentiated outside ``jit`` a warm fit traced and compiled it again in every process (~12 s).
+    """
+    def g(t):
+        out = _KINDS[kind](motor.with_vector(names, t), *args)
+        return out, out
+
+    return jax.jacfwd(g, has_aux=True)(theta)
 
 
 def flux_maps(cal: Any, currents: np.ndarray, *, points: int = GRID_POINTS,
@@ -203,7 +220,12 @@ def flux_maps(cal: Any, currents: np.ndarray, *, points: int = GRID_POINTS,
     if finite.size == 0:
         finite = np.zeros((1, 2))
     i_d, i_q = _grid(finite[:, 0], points), _grid(finite[:, 1], points)
-    value, se = _with_band(_maps, cal, jnp.asarray(i_d), jnp.asarray(i_q))
+    if apparent_at is None:
+        apparent_at = tuple(float(c[np.argmax(np.abs(c))]) for c in (finite[:, 0], finite[:, 1]))
+    at_d, at_q = (a if a != 0.0 else math.nan for a in apparent_at)
+    # The two programs load (or compile) side by side.
+    (value, se), (chord, chord_se) = side_by_side([functools.partial(_with_band, "maps", cal, i_d, i_q),
+                                                    functools.partial(_with_band, "chords", cal, at_d, at_q)])
     half = float(cal.t_factor) * se
     maps = {n: MapBand(value[k], se[k], value[k] - half[k], value[k] + half[k]) for k, n in enumerate(MAPS)}
     names = list(cal.names)
@@ -212,10 +234,6 @@ def flux_maps(cal: Any, currents: np.ndarray, *, points: int = GRID_POINTS,
         v = float(getattr(cal.motor, n))
         s = float(cal.se[names.index(n)]) if n in names else math.nan
         small[n] = (v, s)
-    if apparent_at is None:
-        apparent_at = tuple(float(c[np.argmax(np.abs(c))]) for c in (finite[:, 0], finite[:, 1]))
-    at_d, at_q = (a if a != 0.0 else math.nan for a in apparent_at)
-    chord, chord_se = _with_band(_chords, cal, jnp.asarray(at_d), jnp.asarray(at_q))
     apparent = {"Ld": (float(chord[0]), float(chord_se[0]), (float(apparent_at[0]), 0.0)),
                 "Lq": (float(chord[1]), float(chord_se[1]), (0.0, float(apparent_at[1])))}
     return FluxMaps(i_d=i_d, i_q=i_q, tested=covered_points(i_d, i_q, finite), maps=maps, small_signal=small,
