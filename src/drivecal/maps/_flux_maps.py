@@ -153,7 +153,7 @@ def covered_points(i_d: np.ndarray, i_q: np.ndarray, currents: np.ndarray) -> np
 def _maps(motor: Any, i_d: jnp.ndarray, i_q: jnp.ndarray) -> jnp.ndarray:
     """(5, G, H): the maps of ``MAPS`` at the grid's currents."""
     d, q = jnp.meshgrid(i_d, i_q, indexing="ij")
-    psi_d, psi_q = flux_of_currents(d, q, motor)
+    psi_d, psi_q = flux_of_currents(d, q, motor, loop=True)
     l_dd, l_dq, l_qq = incremental_inductances(psi_d, psi_q, motor)
     return jnp.stack([psi_d, psi_q, l_dd, l_dq, l_qq])
 
@@ -161,8 +161,8 @@ def _maps(motor: Any, i_d: jnp.ndarray, i_q: jnp.ndarray) -> jnp.ndarray:
 @jax.jit
 def _chords(motor: Any, i_d: jnp.ndarray, i_q: jnp.ndarray) -> jnp.ndarray:
     """(2,): ``(psi_d(i_d, 0) - lambda_m) / i_d`` and ``psi_q(0, i_q) / i_q`` (H)."""
-    psi_d, _ = flux_of_currents(i_d, 0.0, motor)
-    _, psi_q = flux_of_currents(0.0, i_q, motor)
+    psi_d, _ = flux_of_currents(i_d, 0.0, motor, loop=True)
+    _, psi_q = flux_of_currents(0.0, i_q, motor, loop=True)
     return jnp.stack([(psi_d - motor.lambda_m) / i_d, psi_q / i_q])
 
 
@@ -191,9 +191,10 @@ _KINDS = {"maps": _maps, "chords": _chords}
 def _value_and_jacobian(motor: Any, theta: jnp.ndarray, *args: Any, kind: str, names: tuple[str, ...]) -> tuple:
     """The Jacobian of ``_KINDS[kind](motor, *args)`` along ``names`` at ``theta`` and its value, in one pass.
 
-    One compiled program, kept on disk (``model.cached_call``): the saturating law's inversion makes it large
-    (examples' SyRM: ~10 s to compile, ~1.3 s to load; the maps and the chords in one program took as long
-    as both), and differentiated outside ``jit`` a warm fit traced and compiled it again in every process (~12 s).
+    One compiled program, kept on disk (``model.cached_call``): differentiated outside ``jit``, a warm fit traced
+    and compiled it again in every process (~12 s of the SyRM's). The law's Newton steps run as a loop
+    (``flux_of_currents(loop=True)``: unrolled, the program took ~10 s to compile and ~1.3 s to load; the maps
+    and the chords in one program took as long as both apart).
     """
     def g(t):
         out = _KINDS[kind](motor.with_vector(names, t), *args)
