@@ -133,7 +133,7 @@ def _magnetic_scores(motor: MotorParams, fit_names: tuple[str, ...], experiment:
     fitted parameters' columns ``fitted`` (m, n), computed here when not given (the bench effects'
     score tests have them: one sensitivity kernel fewer to compile); each term keeps the candidate whose
     signature has the largest statistic. The candidates' columns come from one batched rollout
-    (``model.saturation_columns``; ``started``: that rollout's, dispatched by :func:`_start_magnetic`).
+    (``model.start_saturation_columns``; ``started``: that rollout, dispatched by :func:`_start_magnetic`).
     """
     if not effects:
         return {}
@@ -152,7 +152,7 @@ def _magnetic_scores(motor: MotorParams, fit_names: tuple[str, ...], experiment:
 
 
 def _start_magnetic(motor: MotorParams, experiment: Experiment) -> Callable[[], np.ndarray]:
-    """The magnetic candidates' columns at ``motor`` (``model.saturation_columns``), their program dispatched now."""
+    """The magnetic candidates' columns at ``motor`` (``model.start_saturation_columns``), dispatched now."""
     return start_saturation_columns(motor, _one_substep(model_experiment(experiment, motor, MAGNETIC)))
 
 

@@ -101,7 +101,7 @@ class Experiment(eqx.Module):
             stages (``_steps._rk4``) and the start flux's Newton steps (``physics.flux_of_currents``). The
             same arithmetic (the results agree to rounding) in a program a fraction of the size, which
             compiles and loads several times faster. The score tests' kernels use it
-            (``identify.sensitivity_jacobian(probing=True)``, ``saturation_columns``), and
+            (``identify.sensitivity_jacobian(probing=True)``, ``start_saturation_columns``), and
             :func:`model_experiment` switches it on with the dead time and the saturating law.
     """
 

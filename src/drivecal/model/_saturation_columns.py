@@ -20,27 +20,22 @@ from ._rollout import predict_currents
 from ..physics import EXPONENT_CANDIDATES, MAGNETIC, MotorParams
 
 
-#: Step of the central differences of :func:`saturation_columns` (the coefficients are per unit: the
+#: Step of the central differences of :func:`start_saturation_columns` (the coefficients are per unit: the
 #: currents move by ~1e-4 of the tested current; truncation ~1e-8, rounding ~1e-11 relative).
 SATURATION_STEP = 1e-4
 
 
-def saturation_columns(motor: MotorParams, experiment: Experiment) -> np.ndarray:
-    """The sensitivity of the predicted currents to each saturation coefficient at each candidate exponent.
+def start_saturation_columns(motor: MotorParams, experiment: Experiment) -> Callable[[], np.ndarray]:
+    """The sensitivity of the predicted currents to each saturation coefficient at each candidate exponent,
+    its program dispatched now (XLA runs it while the caller goes on); the function returned waits for it.
 
-    Returns ``d[i_d, i_q]/d sat`` (A per unit), shape (3, K, M, 2): per term of ``physics.MAGNETIC``
+    That function gives ``d[i_d, i_q]/d sat`` (A per unit), shape (3, K, M, 2): per term of ``physics.MAGNETIC``
     (``sat_d``, ``sat_q``, ``sat_dq``) and per candidate ``j`` of its exponents
     (``physics.EXPONENT_CANDIDATES``), at ``motor`` with that term's exponents set to candidate ``j``.
     Central differences of the flux-state rollout, all ``2 * 3 * K`` rollouts in one compiled, batched
     call: the score tests of ``--magnetics auto`` then cost one forward program, not a Jacobian per
     candidate (``diagnose``). ``experiment`` must have ``saturating`` set.
     """
-    return start_saturation_columns(motor, experiment)()
-
-
-def start_saturation_columns(motor: MotorParams, experiment: Experiment) -> Callable[[], np.ndarray]:
-    """:func:`saturation_columns` started: its program dispatched (XLA runs it while the caller goes on); the
-    function returned waits for it and gives the columns."""
     rows = []
     for name in MAGNETIC:
         exponents, values = EXPONENT_CANDIDATES[name]
