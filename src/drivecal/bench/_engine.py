@@ -93,19 +93,21 @@ def _run_segment(segment: Segment, motor: MotorParams, sample_rate: float,
     if float(motor.T_coulomb) != 0.0 and not segment.locked:
         friction = (float(motor.T_load), float(motor.T_coulomb), float(motor.w_coulomb))
     setup = _pmsm_setup(tuple((f.name, float(getattr(warm, f.name))) for f in dataclasses.fields(warm)),
-                        bool(segment.locked), volts.tobytes(), float(sample_rate), dead, friction)
-    return _run_on_engine(setup, sample_rate, label=f"segment '{segment.name}'")
+                        bool(segment.locked), volts.shape[0], float(sample_rate), dead, friction)
+    return _run_on_engine(setup, sample_rate, label=f"segment '{segment.name}'", voltages=volts)
 
 
 @functools.lru_cache(maxsize=8)
-def _pmsm_setup(motor_values: tuple, locked: bool, volts: bytes, sample_rate: float, dead: tuple | None,
+def _pmsm_setup(motor_values: tuple, locked: bool, n: int, sample_rate: float, dead: tuple | None,
                 friction: tuple | None = None):
-    """The bench diagram of one segment on one motor, built once: the same segment
-    run again (the demo's second design repeats the locked q-step) reuses the
-    diagram and so the engine's compiled kernel; the run itself is repeated.
+    """The bench diagram of a segment of ``n`` samples on one motor, built once: its voltages are a parameter
+    of the diagram's context (``_run_on_engine``), so segments of the same length and kind run on the same
+    diagram and so on the engine's one compiled kernel (the default plan's locked d- and q-steps, and the
+    demo's second design's q-step: one compilation of the engine for the three, ~0.5 s each); each run is
+    its own.
 
     ``motor_values``: ``(name, value)`` of every ``MotorParams`` field;
-    ``volts``: the applied ``[v_d, v_q]`` (float64, shape (N, 2)) as bytes;
+    ``n``: the number of samples;
     ``dead``: ``(pole_pairs, v_dead, i_dead, pwm_period)`` of the dead-time feedback, or None;
     ``friction``: ``(T_load, T_coulomb, w_coulomb)`` of the load-port feedback, or None.
     """
@@ -131,15 +133,16 @@ def _pmsm_setup(motor_values: tuple, locked: bool, volts: bytes, sample_rate: fl
             return jnp.stack(bridge_error(v[0], v[1], state[0], state[1], theta_e, block_motor.Ld, block_motor.Lq,
                                           pwm_period, v_dead, i_dead))
 
-    return _held_voltage_diagram(block, np.frombuffer(volts).reshape(-1, 2), sample_rate, error, load)
+    return _held_voltage_diagram(block, np.zeros((n, 2)), sample_rate, error, load)
 
 
 def _held_voltage_diagram(block, voltages: np.ndarray, sample_rate: float, voltage_error=None, load_torque=None):
-    """(diagram, its context, the block, the number of samples) for ``run_held_voltages``.
+    """(diagram, its context, the block, the number of samples, the source) for ``run_held_voltages``.
 
-    The source outputs row k of ``voltages`` (shape (N, 2)) on ``[t_k, t_k+1)``;
-    a zero-order hold at the sample period feeds the block. ``load_torque``:
-    optional ``f(state) -> T`` (N*m) fed back to the block's load port (input 1).
+    The source outputs row k of its parameter ``volts`` (shape (N, 2); ``voltages`` in the context made
+    here, others set by ``_run_on_engine``) on ``[t_k, t_k+1)``; a zero-order hold at the sample period
+    feeds the block. ``load_torque``: optional ``f(state) -> T`` (N*m) fed back to the block's load port
+    (input 1).
     """
     from jaxonomy import DiagramBuilder
     from jaxonomy.library import Adder, FeedthroughBlock, Multiplexer, SourceBlock, ZeroOrderHold
@@ -149,11 +152,12 @@ def _held_voltage_diagram(block, voltages: np.ndarray, sample_rate: float, volta
     n = volts.shape[0]
     dt = 1.0 / sample_rate
 
-    def held_sample(time):
+    def held_sample(time, volts):
         return _held_row(volts, time, sample_rate)
 
     builder = DiagramBuilder()
     source = builder.add(SourceBlock(held_sample, name="v_dq_samples"))
+    source.declare_dynamic_parameter("volts", volts)
     hold = builder.add(ZeroOrderHold(dt, name="pwm_hold"))
     pmsm = builder.add(block)
     builder.connect(source.output_ports[0], hold.input_ports[0])
@@ -174,7 +178,7 @@ def _held_voltage_diagram(block, voltages: np.ndarray, sample_rate: float, volta
         builder.connect(pmsm.output_ports[0], load.input_ports[0])
         builder.connect(load.output_ports[0], pmsm.input_ports[1])
     diagram = builder.build()
-    return diagram, diagram.create_context(), pmsm, n
+    return diagram, diagram.create_context(), pmsm, n, source
 
 
 @functools.partial(jax.jit, static_argnums=(2,))
@@ -209,12 +213,16 @@ def run_held_voltages(block, voltages: np.ndarray, sample_rate: float, *, label:
     return _run_on_engine(setup, sample_rate, label=label)
 
 
-def _run_on_engine(setup, sample_rate: float, *, label: str):
-    """``run_held_voltages`` on a built diagram (``_held_voltage_diagram``)."""
+def _run_on_engine(setup, sample_rate: float, *, label: str, voltages: np.ndarray | None = None):
+    """``run_held_voltages`` on a built diagram (``_held_voltage_diagram``), with its source's ``voltages``
+    (V, shape (N, 2)) where given."""
     from jaxonomy import SimulatorOptions, simulate
 
     _quiet_jaxonomy()
-    diagram, context, pmsm, n = setup
+    diagram, context, pmsm, n, source = setup
+    if voltages is not None:
+        context = context.with_subcontext(source.system_id, context[source.system_id].with_parameter(
+            "volts", jnp.asarray(voltages)))
     dt = 1.0 / sample_rate
 
     t_samples = np.arange(n) * dt
