@@ -13,7 +13,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from ..model import (LEGACY_EMITTERS, RUN_ONCE, Experiment, cached_call, join_current_parts,
+from ..model import (RUN_ONCE, Experiment, cached_call, join_current_parts,
                      predict_current_parts, predict_currents)
 from ..physics import ESTIMATED, MotorParams
 
@@ -60,14 +60,13 @@ def _jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...]
 
 
 #: XLA:CPU options of the score tests' Jacobians (``probing=True``): a bench effect's columns, the effect
-#: switched on in the rollout (``diagnose.effect_signatures``). With XLA's legacy fusion emitters, on
-#: examples/bench.csv, the delay's kernel compiled in 1.9 s against 3.7 s with the default emitters, the
-#: dead time's in 3.3 s against 5.3 s (the same sizes, 1.3 and 3.9 MB). Only these kernels: the Jaxonomy
-#: engine's simulations ran several times slower with the legacy emitters (docs/performance.md), and the
-#: fit's and the designs' kernels keep their numbers to the last bit.
-#: LLVM's optimisation level 0 as well (``model.RUN_ONCE``): a cold fit of examples/bench.csv 10.4 -> 9.5 s
-#: (median of 2), a warm one as fast (each kernel runs once), its score statistics moved in the 15th digit.
-PROBE_COMPILER_OPTIONS = {**LEGACY_EMITTERS, **RUN_ONCE}
+#: switched on in the rollout (``diagnose.effect_signatures``), compiled as a program that runs once
+#: (``model.RUN_ONCE``: LLVM's level 0 and the legacy fusion emitters) with the dead time's rollout too. With
+#: the legacy emitters, on examples/bench.csv, the delay's kernel compiled in 1.9 s against 3.7 s with the
+#: default emitters, the dead time's in 3.3 s against 5.3 s (the same sizes, 1.3 and 3.9 MB); level 0 took a
+#: cold fit of examples/bench.csv 10.4 -> 9.5 s (median of 2), a warm one as fast (each kernel runs once),
+#: its score statistics moved in the 15th digit.
+PROBE_COMPILER_OPTIONS = RUN_ONCE
 
 #: Both Jacobians' function; ``cached_call`` compiles the score tests' with their options, cache or no cache.
 _sensitivity_jacobian = jax.jit(_jacobian, static_argnames=("names",))

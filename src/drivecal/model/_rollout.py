@@ -431,7 +431,7 @@ def predicted_currents(motor: MotorParams, experiment: Experiment) -> np.ndarray
     scans afresh on every call (~1 s each); this is one compiled call whose
     trace is kept on disk (``cached_call``).
     """
-    options = None if experiment.dead_time else RUN_ONCE  # run once: compiled at LLVM's level 0
+    options = None if experiment.dead_time else RUN_ONCE  # run once: compiled at LLVM's level 0, legacy emitters
     return np.asarray(cached_call(_predict_compiled, "predict_currents", motor, experiment,
                                   compiler_options=options))
 

@@ -47,11 +47,11 @@ def start_saturation_columns(motor: MotorParams, experiment: Experiment) -> Call
     # Stacked on the host (NumPy): one device array per leaf, not one per leaf and row (~0.3 s of a warm fit).
     batch = jax.tree_util.tree_map(lambda *xs: np.stack([np.asarray(x, dtype=np.float64) for x in xs]), *rows)
     # The model's steps as loops (Experiment.rolled): the same columns from a program half the size. XLA's
-    # legacy emitters, and without the dead time's rollout LLVM's level 0 (model.RUN_ONCE): on
+    # legacy emitters, and without the dead time's rollout LLVM's level 0 too (model.RUN_ONCE): on
     # examples/bench.csv the program compiles in 0.2 s against 0.6 s and runs in ~0.1 s against ~0.04 s
     # (the score tests' other work goes on meanwhile, as the call is dispatched before it: diagnose), a
     # cold fit 5.2 -> 4.7 s (median of 5). The columns move in the ~12th digit; no printed one.
-    options = LEGACY_EMITTERS if experiment.dead_time else {**LEGACY_EMITTERS, **RUN_ONCE}
+    options = LEGACY_EMITTERS if experiment.dead_time else RUN_ONCE
     out = cached_call(_batched_currents, "saturation_columns", batch, dataclasses.replace(experiment, rolled=True),
                       compiler_options=options)
 
