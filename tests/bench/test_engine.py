@@ -104,9 +104,12 @@ def test_kept_engine_bench_is_the_bench_engine_bench_kept_and_nothing_else(tmp_p
 
 def test_segments_of_one_length_and_kind_share_the_engine_s_kernel_each_with_its_own_voltages():
     """The default plan's locked d- and q-steps (200 samples each) run on one diagram, their voltages a parameter
-    of its context: the engine compiles once for both. Each step's currents are its own, those of a locked rotor
-    with the step's voltage on one axis (i = V/R (1 - exp(-R t / L)), the other axis at zero), not the other's."""
+    of its context: the engine compiles once for both. Each step's currents are its own: those of a diagram built
+    for that step alone, to the bit (the hold holds the step's first voltage from the start, not another's), and
+    those of a locked rotor with the step's voltage on one axis (i = V/R (1 - exp(-R t / L)), the other at zero)."""
     from jaxonomy.simulation.simulator import clear_simulate_cache, simulate_cache_info
+
+    from drivecal.bench import pmsm_block, run_held_voltages
 
     _engine._pmsm_setup.cache_clear()
     clear_simulate_cache()
@@ -116,8 +119,10 @@ def test_segments_of_one_length_and_kind_share_the_engine_s_kernel_each_with_its
     assert simulate_cache_info()["misses"] == 1 and simulate_cache_info()["hits"] == 1
     R, t = float(motor.R), d_step.t
     for segment, axis, inductance in ((d_step, 0, float(motor.Ld)), (q_step, 1, float(motor.Lq))):
+        alone = run_held_voltages(pmsm_block(motor, locked=True), segment.voltages, plan.sample_rate)[1]
+        np.testing.assert_array_equal(segment.currents, alone[:, :2], err_msg=segment.name)
         volts = segment.voltages[0, axis]
         assert volts == 8.0 and np.all(segment.voltages[:, 1 - axis] == 0.0)
         expected = volts / R * (1.0 - np.exp(-R * t / inductance))
-        np.testing.assert_allclose(segment.currents[:, axis], expected, rtol=0, atol=1e-8, err_msg=segment.name)
+        np.testing.assert_allclose(segment.currents[:, axis], expected, rtol=0, atol=1e-9, err_msg=segment.name)
         np.testing.assert_allclose(segment.currents[:, 1 - axis], 0.0, rtol=0, atol=1e-12, err_msg=segment.name)

@@ -103,8 +103,9 @@ def _pmsm_setup(motor_values: tuple, locked: bool, n: int, sample_rate: float, d
     """The bench diagram of a segment of ``n`` samples on one motor, built once: its voltages are a parameter
     of the diagram's context (``_run_on_engine``), so segments of the same length and kind run on the same
     diagram and so on the engine's one compiled kernel (the default plan's locked d- and q-steps, and the
-    demo's second design's q-step: one compilation of the engine for the three, ~0.5 s each); each run is
-    its own.
+    demo's second design's q-step: one compilation of the engine for the three, ~0.5 s each; the nine locked
+    steps of a PM-SyRM's multi-level plan: 23.5 -> 6.5 s); each run is its own, the same to the bit as on a
+    diagram built for its voltages.
 
     ``motor_values``: ``(name, value)`` of every ``MotorParams`` field;
     ``n``: the number of samples;
@@ -137,7 +138,7 @@ def _pmsm_setup(motor_values: tuple, locked: bool, n: int, sample_rate: float, d
 
 
 def _held_voltage_diagram(block, voltages: np.ndarray, sample_rate: float, voltage_error=None, load_torque=None):
-    """(diagram, its context, the block, the number of samples, the source) for ``run_held_voltages``.
+    """The diagram of ``run_held_voltages``, its context, the block, the number of samples, the source and the hold.
 
     The source outputs row k of its parameter ``volts`` (shape (N, 2); ``voltages`` in the context made
     here, others set by ``_run_on_engine``) on ``[t_k, t_k+1)``; a zero-order hold at the sample period
@@ -178,7 +179,7 @@ def _held_voltage_diagram(block, voltages: np.ndarray, sample_rate: float, volta
         builder.connect(pmsm.output_ports[0], load.input_ports[0])
         builder.connect(load.output_ports[0], pmsm.input_ports[1])
     diagram = builder.build()
-    return diagram, diagram.create_context(), pmsm, n, source
+    return diagram, diagram.create_context(), pmsm, n, source, hold
 
 
 @functools.partial(jax.jit, static_argnums=(2,))
@@ -219,10 +220,17 @@ def _run_on_engine(setup, sample_rate: float, *, label: str, voltages: np.ndarra
     from jaxonomy import SimulatorOptions, simulate
 
     _quiet_jaxonomy()
-    diagram, context, pmsm, n, source = setup
+    diagram, context, pmsm, n, source, hold = setup
     if voltages is not None:
-        context = context.with_subcontext(source.system_id, context[source.system_id].with_parameter(
-            "volts", jnp.asarray(voltages)))
+        # The context as a diagram built for these voltages makes it: made afresh from the parameter, and the
+        # hold holding their first row from the start (the hold's first value is inferred once, when the diagram's
+        # first context is made, and kept by the block: another segment's would act for the solver's first step,
+        # ~1e-8 A on a saturating bench).
+        source.dynamic_parameters["volts"].set(jnp.asarray(voltages))
+        context = diagram.create_context()
+        port = hold.output_ports[0]
+        context = context.with_subcontext(hold.system_id, context[hold.system_id].with_cached_value(
+            port.cache_index, jnp.asarray(voltages[0])))
     dt = 1.0 / sample_rate
 
     t_samples = np.arange(n) * dt
