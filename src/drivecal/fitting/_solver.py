@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..model import LEGACY_EMITTERS, RUN_ONCE, cached_call, join_current_parts
+from ..model import LEGACY_EMITTERS, cached_call, join_current_parts, run_once_options
 from ..physics import from_search, to_search
 from ..results import solver_code
 from ._initial import start_from_data
@@ -197,8 +197,8 @@ def _solve_batch(currents, start, prior, experiment, names, fit_names, options) 
         experiment = dataclasses.replace(experiment, linearised_tangents=linearised, rolled=rolled)
     # A batch's solve with XLA's legacy emitters: 235 object files against 401 for a fleet's chunk of 256 (a
     # kernel of more than _setup.MAX_CACHED_OBJECTS is not kept, and every batch process compiled it again).
-    # A batch of one's at LLVM's level 0 (model.RUN_ONCE), unless the dead time's rollout makes it run long.
-    single = None if experiment.dead_time else RUN_ONCE
+    # A batch of one's as a program that runs once (model.run_once_options).
+    single = run_once_options(experiment.dead_time)
     fields = cached_call(_solve_fields, "solve_batch", currents, start, prior, experiment, names=names,
                          fit_names=fit_names, options=options,
                          compiler_options=LEGACY_EMITTERS if currents.shape[0] > 1 else single)

@@ -13,8 +13,8 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from ..model import (RUN_ONCE, Experiment, cached_call, join_current_parts,
-                     predict_current_parts, predict_currents)
+from ..model import (RUN_ONCE, Experiment, cached_call, join_current_parts, predict_current_parts,
+                     predict_currents, run_once_options)
 from ..physics import ESTIMATED, MotorParams
 
 
@@ -38,7 +38,7 @@ def jacobian_and_outputs(motor: MotorParams, experiment: Experiment, names: tupl
         return cached_call(_sensitivity_jacobian, "probe_jacobian", motor, experiment, names=tuple(names),
                            compiler_options=PROBE_COMPILER_OPTIONS)
     return cached_call(_sensitivity_jacobian, "sensitivity_jacobian", motor, experiment, names=tuple(names),
-                       compiler_options=None if experiment.dead_time else RUN_ONCE)
+                       compiler_options=run_once_options(experiment.dead_time))
 
 
 def _jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...]) -> tuple[jnp.ndarray, jnp.ndarray]:

@@ -69,15 +69,21 @@ LEGACY_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
 #: XLA:CPU's backend (LLVM) at optimisation level 0, with its legacy fusion emitters: for a program that runs
 #: once or a few times in a command and for milliseconds at most (a single fit's solve, the sensitivity
 #: Jacobian and the predicted currents without the dead time's rollout, the score tests' Jacobians).
-#: Level 0 compiled in about half the time (the Jacobian of examples/bench.csv: 1.16 -> 0.56 s; it then ran
-#: in 3.2 ms against 0.4 ms); the bits may differ in the last places (examples/bench.csv's fit --json: 1e-11
-#: relative at most, no printed digit). A cold fit of examples/bench.csv 9.5 -> 8.5 s, the demo's 20.0 ->
-#: 18.7 s with the solve and the predicted currents, the demo's 15.6 -> 14.8 s with the Jacobian too (A/B).
-#: The legacy emitters at level 0 halve it again and run faster: the demo's identifiability Jacobian (1 400
-#: samples) 0.85 -> 0.40 s to compile, 12 -> 2 ms to run; examples/bench.csv's 0.53 -> 0.25 s, 2.1 -> 0.8 ms;
-#: the predicted currents' 0.17 -> 0.10 s (the score tests' Jacobians had them already). The dead-time
-#: model's programs keep level 2 (the inverter bench's warm fit took 0.5 s longer with its solves at level 0).
+#: Level 0 compiled in about half the time (examples/bench.csv's Jacobian 1.16 -> 0.56 s, then run in 3.2 ms
+#: against 0.4 ms; its fit --json moved 1e-11 relative at most, no printed digit). The legacy emitters at
+#: level 0 halve it again and run faster: the demo's identifiability Jacobian (1 400 samples) 0.85 -> 0.40 s
+#: to compile, 12 -> 2 ms to run; examples/bench.csv's 0.53 -> 0.25 s, 2.1 -> 0.8 ms; the predicted
+#: currents' 0.17 -> 0.10 s. With the dead time's rollout: :func:`run_once_options`.
 RUN_ONCE = {"xla_backend_optimization_level": 0, **LEGACY_EMITTERS}
+
+
+def run_once_options(dead_time: bool) -> dict[str, Any]:
+    """The compile options of a program that runs once or a few times in a command: :data:`RUN_ONCE`, or with
+    the dead time's rollout (``Experiment.dead_time``: a sequential scan, tens of milliseconds a run) LLVM's
+    level 2 (at level 0 the inverter bench's warm fit took 0.5 s longer), with the legacy emitters: its
+    Jacobians compiled in 1.12 and 0.75 s against 1.71 and 1.32 s with the default emitters, and ran in 31
+    and 68 ms against 30 and 59 ms; its predicted currents 0.34 against 0.56 s (20 ms a run either way)."""
+    return LEGACY_EMITTERS if dead_time else RUN_ONCE
 
 #: The plain calls jitted with compile options (:func:`_plain`).
 _PLAIN: dict[tuple, Callable] = {}

@@ -30,7 +30,7 @@ import numpy as np
 
 from ._experiment import Experiment, chain_starts, in_rotor_frame
 from ._flux import rollout_flux
-from ._lowered_cache import RUN_ONCE, call as cached_call
+from ._lowered_cache import call as cached_call, run_once_options
 from ._scans import _scan_affine_constant, _scan_linearised_tangents, _scan_states, seeded
 from ._steps import _held, _quadratic, _rk4, _substeps, _with_delay
 from ..physics import (DqCoefficients, MotorParams, bridge_error, dq_coefficients, dq_derivatives_from,
@@ -431,9 +431,8 @@ def predicted_currents(motor: MotorParams, experiment: Experiment) -> np.ndarray
     scans afresh on every call (~1 s each); this is one compiled call whose
     trace is kept on disk (``cached_call``).
     """
-    options = None if experiment.dead_time else RUN_ONCE  # run once: compiled at LLVM's level 0, legacy emitters
     return np.asarray(cached_call(_predict_compiled, "predict_currents", motor, experiment,
-                                  compiler_options=options))
+                                  compiler_options=run_once_options(experiment.dead_time)))
 
 
 _predict_compiled = jax.jit(predict_currents)

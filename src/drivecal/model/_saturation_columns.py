@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._experiment import Experiment
-from ._lowered_cache import LEGACY_EMITTERS, RUN_ONCE, call as cached_call
+from ._lowered_cache import call as cached_call, run_once_options
 from ._rollout import predict_currents
 from ..physics import EXPONENT_CANDIDATES, MAGNETIC, MotorParams
 
@@ -51,9 +51,8 @@ def start_saturation_columns(motor: MotorParams, experiment: Experiment) -> Call
     # examples/bench.csv the program compiles in 0.2 s against 0.6 s and runs in ~0.1 s against ~0.04 s
     # (the score tests' other work goes on meanwhile, as the call is dispatched before it: diagnose), a
     # cold fit 5.2 -> 4.7 s (median of 5). The columns move in the ~12th digit; no printed one.
-    options = LEGACY_EMITTERS if experiment.dead_time else RUN_ONCE
     out = cached_call(_batched_currents, "saturation_columns", batch, dataclasses.replace(experiment, rolled=True),
-                      compiler_options=options)
+                      compiler_options=run_once_options(experiment.dead_time))
 
     def columns() -> np.ndarray:
         count = len(EXPONENT_CANDIDATES[MAGNETIC[0]][1])
