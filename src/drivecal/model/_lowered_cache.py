@@ -85,6 +85,7 @@ def run_once_options(dead_time: bool) -> dict[str, Any]:
     and 68 ms against 30 and 59 ms; its predicted currents 0.34 against 0.56 s (20 ms a run either way)."""
     return LEGACY_EMITTERS if dead_time else RUN_ONCE
 
+
 #: The plain calls jitted with compile options (:func:`_plain`).
 _PLAIN: dict[tuple, Callable] = {}
 
