@@ -66,6 +66,33 @@ def test_the_score_tests_kernel_has_the_plain_jacobian_s_numbers(truth):
     assert np.all(np.abs(probed - plain) <= 1e3 * np.finfo(float).eps * scale)
 
 
+def test_the_offsets_columns_written_down_are_forward_mode_s(truth):
+    """The sensors' dq offsets only add to the currents: their columns (``identify.ADDITIVE``) are written down
+    beside the other parameters' program, and are exactly forward mode's over the whole model (1 on their
+    axis's rows, 0 on the others), with the dead time's rollout too; the other columns are the program's."""
+    import jax
+
+    from drivecal.identify import ADDITIVE, jacobian_and_outputs
+    from drivecal.model import model_experiment
+
+    names = ("R", "offset_q", "Ld", "Lq", "lambda_m", "v_dead", "offset_d")
+    motor = truth.replace(v_dead=0.3, offset_d=0.05, offset_q=-0.02)
+    experiment = model_experiment(dc.Experiment.from_plan(dc.default_plan()), motor, names)
+    assert experiment.dead_time and set(ADDITIVE) == {"offset_d", "offset_q"}
+    jac, outputs = (np.asarray(a) for a in jacobian_and_outputs(motor, experiment, names))
+    forward = np.asarray(jax.jit(jax.jacfwd(
+        lambda th: dc.predict_currents(motor.with_vector(names, th), experiment).reshape(-1)))(motor.vector(names)))
+    assert jac.shape == forward.shape == (2 * experiment.num_samples, len(names))
+    for n in ADDITIVE:
+        np.testing.assert_array_equal(jac[:, names.index(n)], forward[:, names.index(n)])
+    scale = np.abs(forward).max(axis=0)
+    assert np.all(np.abs(jac - forward) <= 1e3 * np.finfo(float).eps * scale)
+    predicted = np.asarray(jax.jit(dc.predict_currents)(motor, experiment)).reshape(-1)
+    np.testing.assert_allclose(outputs, predicted, rtol=0, atol=1e3 * np.finfo(float).eps * np.abs(predicted).max())
+    alone = np.asarray(dc.sensitivity_jacobian(motor, experiment, ("offset_d", "offset_q"), probing=True))
+    np.testing.assert_array_equal(alone, forward[:, [names.index("offset_d"), names.index("offset_q")]])
+
+
 def test_identifiability_report_is_jaxterity_s(truth):
     """identify.py repeats jaxterity's identifiability_from_jacobian (importing it loads MuJoCo): same report."""
     import contextlib

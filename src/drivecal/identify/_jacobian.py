@@ -12,27 +12,67 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..model import (RUN_ONCE, Experiment, cached_call, join_current_parts, predict_current_parts,
                      predict_currents, run_once_options)
 from ..physics import ESTIMATED, MotorParams
 
 
+#: Parameters the model adds to the predicted currents and to nothing else (the dq current sensors' offsets,
+#: ``physics.with_dq_offsets``, added last): each one's column is 1 on its axis's current rows and 0 on the
+#: others, exactly what forward mode gives. Written down, not compiled: a fit's kernel with the offsets is the
+#: kernel without them (examples/inverter_bench.csv, whose selection adds them to a model with the dead time:
+#: two kernels fewer, its offsets' score test and the fit with them; a cold fit 13.4 -> 11.8 s, warm 3.71 ->
+#: 3.53 s, examples/bench.csv's 3.85 -> 3.59 s and 1.10 -> 1.04 s, A/B medians; fit --json bit for bit).
+ADDITIVE: dict[str, int] = {"offset_d": 0, "offset_q": 1}
+
+
 def sensitivity_jacobian(motor: MotorParams, experiment: Experiment, names: tuple[str, ...] = ESTIMATED, *,
-                         probing: bool = False) -> jnp.ndarray:
+                         probing: bool = False) -> np.ndarray | jnp.ndarray:
     """``d(i_d, i_q at every sample)/d(theta)``, shape (2M, len(names)), A per unit of theta.
 
     Rows alternate i_d, i_q sample by sample (the flattening of (M, 2)). With the measured speed
     as an output (``Experiment.speed_outputs``) the weighted speed's rows follow (K more rows, in
     the currents' units: ``speed_weight`` A per rad/s). ``probing``: a score test's columns (a bench
-    effect's probes), compiled with :data:`PROBE_COMPILER_OPTIONS`.
+    effect's probes), compiled with :data:`PROBE_COMPILER_OPTIONS`. Only :data:`ADDITIVE` names: no program.
     """
+    names = tuple(names)
+    if names and all(n in ADDITIVE for n in names):
+        speed_rows = sum(experiment.segments[s][1] - experiment.segments[s][0] for s in experiment.speed_outputs)
+        return _with_additive(np.zeros((2 * experiment.num_samples + speed_rows, 0)), (), names, experiment)
     return jacobian_and_outputs(motor, experiment, names, probing=probing)[0]
 
 
 def jacobian_and_outputs(motor: MotorParams, experiment: Experiment, names: tuple[str, ...] = ESTIMATED, *,
-                         probing: bool = False) -> tuple[jnp.ndarray, jnp.ndarray]:
-    """:func:`sensitivity_jacobian` and the predicted outputs it is the derivative of (2M or 2M + K rows), in one pass."""
+                         probing: bool = False) -> tuple[np.ndarray | jnp.ndarray, jnp.ndarray]:
+    """:func:`sensitivity_jacobian` and the predicted outputs it is the derivative of (2M or 2M + K rows), in one pass.
+
+    The columns of :data:`ADDITIVE` names are written down beside the others' program (a numpy array then)."""
+    names = tuple(names)
+    traced = tuple(n for n in names if n not in ADDITIVE)
+    if traced == names or not traced:
+        return _compiled(motor, experiment, names, probing)
+    jac, outputs = _compiled(motor, experiment, traced, probing)
+    if isinstance(jac, jax.core.Tracer):  # inside a trace: one program anyway
+        return _compiled(motor, experiment, names, probing)
+    return _with_additive(np.asarray(jac), traced, names, experiment), outputs
+
+
+def _with_additive(jac: np.ndarray, traced: tuple[str, ...], names: tuple[str, ...],
+                   experiment: Experiment) -> np.ndarray:
+    """``jac`` (the columns of ``traced``) with those of the :data:`ADDITIVE` names, in the order of ``names``."""
+    columns = dict(zip(traced, jac.T))
+    for n in names:
+        if n in ADDITIVE:
+            column = np.zeros(jac.shape[0])
+            column[ADDITIVE[n]:2 * experiment.num_samples:2] = 1.0
+            columns[n] = column
+    return np.stack([columns[n] for n in names], axis=1)
+
+
+def _compiled(motor: MotorParams, experiment: Experiment, names: tuple[str, ...],
+              probing: bool) -> tuple[jnp.ndarray, jnp.ndarray]:
     if probing:  # RK4's stages as a loop: the dead time's program a fifth of the size (Experiment.rolled)
         experiment = dataclasses.replace(experiment, rolled=True)
         return cached_call(_sensitivity_jacobian, "probe_jacobian", motor, experiment, names=tuple(names),
