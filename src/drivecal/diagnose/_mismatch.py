@@ -255,10 +255,14 @@ def prepare_unmodelled_effects(motor: MotorParams, fit_names: tuple[str, ...], e
         base = model_experiment(experiment, motor, tuple(fit_names))
         # What unmodelled_effects runs after the fit: kept kernels load side by side, new ones compile one at a
         # time (model.ahead_of_need), the largest first; none runs (model.outputs_unused).
-        work = _signature_work(motor, tuple(fit_names), base, plain)[0] if plain else []
+        bench = tuple(e for e in plain if e not in ANGLE_EFFECTS)
+        work = _signature_work(motor, tuple(fit_names), base, bench)[0] if bench else []
         if magnetic:
             work.append(lambda: _start_magnetic(motor, base)())
         work.append(lambda: predicted_currents(motor, base))
+        # An encoder offset's test last: the verdict's, after the selection's own tests.
+        angle = tuple(e for e in plain if e in ANGLE_EFFECTS)
+        work += _signature_work(motor, tuple(fit_names), base, angle)[0][:-1] if angle else []
         with ahead_of_need(), outputs_unused():
             side_by_side(work)
 

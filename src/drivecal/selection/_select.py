@@ -48,7 +48,8 @@ from typing import Any, Callable
 import numpy as np
 
 from .._stats import chi2_sf
-from ..diagnose import ALPHA, EFFECTS, MAGNETIC_EFFECTS, prepare_unmodelled_effects, unmodelled_effects
+from ..diagnose import (ALPHA, EFFECTS, MAGNETIC_EFFECTS, prepare_unmodelled_effects, unmodelled_effects,
+                        untested_effects)
 from ..errors import DrivecalError
 from ..fitting import FitOptions, fit_currents
 from ..identify import assess_identifiability
@@ -357,7 +358,10 @@ def _add_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParam
         # The next round's score tests (the model with this effect in) compile beside the refit, as the first
         # round's beside the base fit: a bench effect's refit has the structure of the model that keeps it
         # (examples/inverter_bench.csv, cold: 13.9 -> 13.5 s, median of 3 A/B).
-        ahead = (start, trial, experiment, tuple(candidates) + blockers) if effect in EFFECTS else None
+        # After the last bench effect, the verdict's test of what no candidate covers (an encoder offset) too.
+        verdict = () if set(candidates) & set(EFFECTS) else tuple(
+            e for e in untested_effects(trial, experiment) if e not in CANDIDATES)
+        ahead = (start, trial, experiment, tuple(candidates) + blockers + verdict) if effect in EFFECTS else None
         with compiled_ahead(prepare_unmodelled_effects, *ahead, after_first_trace=True) if ahead else nullcontext():
             refit = fit_currents(experiment, currents, centre, names=trial, initial=start, options=options,
                                  source=source, identifiability=ident)
