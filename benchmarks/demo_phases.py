@@ -40,9 +40,11 @@ WHAT = {"backend_compile_duration": "compile", "jaxpr_trace_duration": "trace",
 
 
 def _asker() -> str:
-    """The two innermost drivecal frames (the trace cache's plumbing left out): who asked for the kernel, for what."""
+    """The two innermost drivecal frames (the trace cache's plumbing and the Jacobian's ``_compiled`` left out): who
+    asked for the kernel, for what."""
     frames = [f for f in traceback.extract_stack()
-              if "/drivecal/" in f.filename.replace("\\", "/") and "_lowered_cache" not in f.filename]
+              if "/drivecal/" in f.filename.replace("\\", "/") and "_lowered_cache" not in f.filename
+              and not (f.name == "_compiled" and f.filename.endswith("_jacobian.py"))]
     if not frames:
         return "(outside drivecal)"
     return " > ".join(f"{f.filename.replace(chr(92), '/').split('/drivecal/')[-1][:-3]}.{f.name}" for f in frames[-2:])
