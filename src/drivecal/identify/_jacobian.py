@@ -51,11 +51,10 @@ def jacobian_and_outputs(motor: MotorParams, experiment: Experiment, names: tupl
     The columns of :data:`ADDITIVE` names are written down beside the others' program (a numpy array then)."""
     names = tuple(names)
     traced = tuple(n for n in names if n not in ADDITIVE)
-    if traced == names or not traced:
+    inside = any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves((motor, experiment)))
+    if traced == names or not traced or inside:  # inside a trace: one program anyway
         return _compiled(motor, experiment, names, probing)
     jac, outputs = _compiled(motor, experiment, traced, probing)
-    if isinstance(jac, jax.core.Tracer):  # inside a trace: one program anyway
-        return _compiled(motor, experiment, names, probing)
     return _with_additive(np.asarray(jac), traced, names, experiment), outputs
 
 

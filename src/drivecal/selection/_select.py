@@ -360,9 +360,11 @@ def _add_effects(experiment: Experiment, currents: np.ndarray, prior: MotorParam
         # (examples/inverter_bench.csv, cold, A/B medians of 3: with the fitted columns the fit's own, 16.2 ->
         # 13.5 s, against 15.8 -> 13.9 s for that change alone).
         # After the last bench effect, the verdict's test of what no candidate covers (an encoder offset) too.
-        verdict = () if set(candidates) & set(EFFECTS) else tuple(
-            e for e in untested_effects(trial, experiment) if e not in CANDIDATES)
-        ahead = (start, trial, experiment, tuple(candidates) + blockers + verdict) if effect in EFFECTS else None
+        ahead = None
+        if effect in EFFECTS:
+            verdict = () if set(candidates) & set(EFFECTS) else tuple(
+                e for e in untested_effects(trial, experiment) if e not in CANDIDATES)
+            ahead = (start, trial, experiment, tuple(candidates) + blockers + verdict)
         with compiled_ahead(prepare_unmodelled_effects, *ahead, after_first_trace=True) if ahead else nullcontext():
             refit = fit_currents(experiment, currents, centre, names=trial, initial=start, options=options,
                                  source=source, identifiability=ident)
