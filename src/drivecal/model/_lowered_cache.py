@@ -80,10 +80,14 @@ RUN_ONCE = {"xla_backend_optimization_level": 0, **LEGACY_EMITTERS}
 def run_once_options(dead_time: bool) -> dict[str, Any]:
     """The compile options of a program that runs once or a few times in a command: :data:`RUN_ONCE`, or with
     the dead time's rollout (``Experiment.dead_time``: a sequential scan, tens of milliseconds a run) LLVM's
-    level 2 (at level 0 the inverter bench's warm fit took 0.5 s longer), with the legacy emitters: its
+    level 1 (at level 0 the inverter bench's warm fit took 0.5 s longer), with the legacy emitters: its
     Jacobians compiled in 1.12 and 0.75 s against 1.71 and 1.32 s with the default emitters, and ran in 31
-    and 68 ms against 30 and 59 ms; its predicted currents 0.34 against 0.56 s (20 ms a run either way)."""
-    return LEGACY_EMITTERS if dead_time else RUN_ONCE
+    and 68 ms against 30 and 59 ms; its predicted currents 0.34 against 0.56 s (20 ms a run either way).
+    Level 1 against 2: the saturation columns' program (``start_saturation_columns``) compiles in 2.1 against
+    2.9 s and runs as fast (0.37 s); the inverter bench's cold fit 28.2 -> 27.3 s, 45.8 -> 43.0 CPU seconds
+    (a slower machine, A/B medians of 3), warm the same (medians of 6: 10.6 and 10.0 s, 13.3 CPU seconds
+    each); the fit's numbers move by < 1e-9 relative, no printed digit."""
+    return {**LEGACY_EMITTERS, "xla_backend_optimization_level": 1} if dead_time else RUN_ONCE
 
 
 #: The plain calls jitted with compile options (:func:`_plain`).
