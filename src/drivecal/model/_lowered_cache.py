@@ -75,6 +75,8 @@ LEGACY_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
 #: to compile, 12 -> 2 ms to run; examples/bench.csv's 0.53 -> 0.25 s, 2.1 -> 0.8 ms; the predicted
 #: currents' 0.17 -> 0.10 s. With the dead time's rollout: :func:`run_once_options`.
 RUN_ONCE = {"xla_backend_optimization_level": 0, **LEGACY_EMITTERS}
+#: :func:`run_once_options` with the dead time's rollout: LLVM's level 1, the legacy emitters.
+DEAD_TIME_RUN_ONCE = {"xla_backend_optimization_level": 1, **LEGACY_EMITTERS}
 
 
 def run_once_options(dead_time: bool) -> dict[str, Any]:
@@ -87,7 +89,7 @@ def run_once_options(dead_time: bool) -> dict[str, Any]:
     2.9 s and runs as fast (0.37 s); the inverter bench's cold fit 28.2 -> 27.3 s, 45.8 -> 43.0 CPU seconds
     (a slower machine, A/B medians of 3), warm the same (medians of 6: 10.6 and 10.0 s, 13.3 CPU seconds
     each); the fit's numbers move by < 1e-9 relative, no printed digit."""
-    return {**LEGACY_EMITTERS, "xla_backend_optimization_level": 1} if dead_time else RUN_ONCE
+    return DEAD_TIME_RUN_ONCE if dead_time else RUN_ONCE
 
 
 #: The plain calls jitted with compile options (:func:`_plain`).
