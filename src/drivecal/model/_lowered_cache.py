@@ -80,17 +80,9 @@ DEAD_TIME_RUN_ONCE = {"xla_backend_optimization_level": 1, **LEGACY_EMITTERS}
 
 
 def run_once_options(dead_time: bool) -> dict[str, Any]:
-    """The compile options of a program that runs once or a few times in a command: :data:`RUN_ONCE`, or with
-    the dead time's rollout (``Experiment.dead_time``: a sequential scan, tens of milliseconds a run, at every
-    step of a fit) :data:`DEAD_TIME_RUN_ONCE`, LLVM's level 1 with the legacy emitters.
-
-    The legacy emitters (at level 2): on examples/inverter_bench.csv its Jacobians compiled in 1.12 and 0.75 s
-    against 1.71 and 1.32 s with the default emitters, and ran in 31 and 68 ms against 30 and 59 ms; its
-    predicted currents 0.34 against 0.56 s (20 ms a run either way). Level 0 made its warm fit 0.5 s longer.
-    Level 1 against 2: the saturation columns' program (``start_saturation_columns``) compiles in 2.1 against
-    2.9 s and runs as fast (0.37 s); the inverter bench's cold fit 28.2 -> 27.3 s, 45.8 -> 43.0 CPU seconds
-    (a slower machine, A/B medians of 3), warm the same (medians of 6: 10.6 and 10.0 s, 13.3 CPU seconds
-    each); the fit's numbers move by < 1e-9 relative, no printed digit."""
+    """:data:`RUN_ONCE`, or with the dead time's rollout (``Experiment.dead_time``: tens of ms a run, at every LM
+    step) :data:`DEAD_TIME_RUN_ONCE`: legacy emitters (half the compile), level 1 (level 0 made the inverter
+    bench's warm fit 0.5 s longer; level 2 compiled slower, ran as fast: docs/performance.md, stop 59)."""
     return DEAD_TIME_RUN_ONCE if dead_time else RUN_ONCE
 
 
