@@ -51,11 +51,15 @@ def jacobian_and_outputs(motor: MotorParams, experiment: Experiment, names: tupl
     The columns of :data:`ADDITIVE` names are written down beside the others' program (a numpy array then)."""
     names = tuple(names)
     traced = tuple(n for n in names if n not in ADDITIVE)
-    inside = any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves((motor, experiment)))
-    if traced == names or not traced or inside:  # inside a trace: one program anyway
+    if traced == names or not traced or _inside_trace(motor, experiment):  # inside a trace: one program anyway
         return _compiled(motor, experiment, names, probing)
     jac, outputs = _compiled(motor, experiment, traced, probing)
     return _with_additive(np.asarray(jac), traced, names, experiment), outputs
+
+
+def _inside_trace(*trees) -> bool:
+    """Whether any leaf of ``trees`` is a JAX tracer (asked only where the offsets' columns would be split off)."""
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(trees))
 
 
 def _with_additive(jac: np.ndarray, traced: tuple[str, ...], names: tuple[str, ...],
