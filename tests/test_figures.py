@@ -41,6 +41,31 @@ def test_workers_draw_the_same_bytes_as_the_caller():
     assert all(png.startswith(b"\x89PNG") for png in pooled)
 
 
+def test_a_figure_asked_for_twice_is_drawn_once(monkeypatch):
+    drawn = []
+    monkeypatch.setattr(_figures, "render", lambda *job: drawn.append(job[0]) or job[0].encode())
+    name, kwargs, dpi = _jobs()[2]
+    alike = {**kwargs, "history": kwargs["history"].copy(), "names": list(kwargs["names"]),
+             "against_truth": np.bool_(False)}  # another list, array and scalar of the same values
+    renderer = _figures.FigureRenderer(0)
+    first, again = renderer.submit(name, kwargs, dpi), renderer.submit(name, alike, dpi)
+    assert again is first
+    assert renderer.render_all([(name, alike, dpi), _jobs()[3]]) == [b"convergence", b"correlation"]
+    assert first.result() == b"convergence" and drawn == ["convergence", "correlation"]
+
+
+def test_a_job_key_tells_apart_what_draws_differently():
+    name, kwargs, dpi = _jobs()[2]
+    key = _figures.job_key(name, kwargs, dpi)
+    assert key == _figures.job_key(name, {**kwargs, "names": list(kwargs["names"])}, dpi)
+    changed = [(name, kwargs, 80), ("currents", kwargs, dpi),
+               (name, {**kwargs, "history": kwargs["history"] * (1 + 1e-16 * 4)}, dpi),
+               (name, {**kwargs, "history": kwargs["history"].astype(np.float32)}, dpi),
+               (name, {**kwargs, "against_truth": 0}, dpi), (name, {**kwargs, "names": ("R", "Lq")}, dpi)]
+    assert all(_figures.job_key(*job) != key for job in changed)
+    assert _figures.job_key(name, {**kwargs, "extra": object()}, dpi) is None
+
+
 def test_without_workers_the_caller_draws(monkeypatch):
     monkeypatch.setenv(_figures.PROCESSES_ENV, "0")
     renderer = _figures.FigureRenderer()

@@ -157,6 +157,7 @@ class FigureRenderer:
         self.processes = worker_count() if processes is None else max(0, int(processes))
         self._queue: queue.Queue | None = None
         self._threads: list[threading.Thread] = []
+        self._jobs: dict[bytes, _Job] = {}  # by job_key: a figure asked for twice is drawn once
 
     def start(self) -> "FigureRenderer":
         """Launch the workers (idempotent); each loads matplotlib at once."""
@@ -169,9 +170,15 @@ class FigureRenderer:
         return self
 
     def submit(self, name: str, kwargs: Mapping[str, Any], dpi: int) -> "_Job":
-        """Queue figure ``name`` of :data:`FIGURES` drawn at ``dpi``."""
+        """Queue figure ``name`` of :data:`FIGURES` drawn at ``dpi``; the job already queued where the same figure
+        was asked for before (:func:`job_key`): a report's page and its PNG files share one drawing."""
+        key = job_key(name, kwargs, dpi)
+        if key is not None and key in self._jobs:
+            return self._jobs[key]
         self.start()
         job = _Job(name, dict(kwargs), int(dpi))
+        if key is not None:
+            self._jobs[key] = job
         if self._queue is not None:
             self._queue.put(job)
         elif job.claim():
@@ -205,6 +212,38 @@ class FigureRenderer:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def job_key(name: str, kwargs: Mapping[str, Any], dpi: int) -> bytes | None:
+    """What a figure job draws, as bytes: equal for jobs that give the same PNG; None where its inputs are of a
+    kind not spelled out here (such a job is never taken for another).
+
+    Lists and tuples are one kind (the figures read both as sequences); arrays keep their dtype and shape, numbers
+    their type and exact value (``repr``), numpy scalars count as the Python number they hold.
+    """
+    import pickle
+
+    def spelled(x: Any) -> Any:
+        if isinstance(x, Mapping):
+            return ("map", tuple(sorted((str(k), spelled(v)) for k, v in x.items())))
+        if isinstance(x, (list, tuple)) or (isinstance(x, np.ndarray) and x.dtype.hasobject and x.ndim == 1):
+            return ("seq", tuple(spelled(v) for v in x))
+        if isinstance(x, np.ndarray) and not x.dtype.hasobject:
+            return ("array", x.dtype.str, x.shape, x.tobytes())
+        if isinstance(x, np.generic):
+            return spelled(x.item())
+        if x is None or isinstance(x, (bool, int, float, str)):
+            return (type(x).__name__, repr(x))
+        raise _Unspelled
+
+    try:
+        return pickle.dumps((name, int(dpi), spelled(kwargs)))
+    except _Unspelled:
+        return None
+
+
+class _Unspelled(Exception):
+    """An input :func:`job_key` does not spell out."""
 
 
 class _Job:

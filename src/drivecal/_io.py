@@ -41,7 +41,11 @@ def write_json(path: str | os.PathLike, payload: Any) -> None:
         tmp.write_text(json.dumps(payload, indent=2, allow_nan=False) + "\n")
 
 
-def save_figure(fig, path: str | os.PathLike, dpi: int = 110) -> None:
+#: Resolution of the PNG files the commands write (dots per inch).
+FILE_DPI = 110
+
+
+def save_figure(fig, path: str | os.PathLike, dpi: int = FILE_DPI) -> None:
     """Save a matplotlib figure as PNG, atomically, and close it."""
     from ._figures import png_bytes
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from drivecal.cli import main
+from helpers.cli import assert_page_embeds_files
 
 
 def test_demo_json_parses_and_carries_the_numbers(demo_run):
@@ -47,6 +48,15 @@ def test_demo_writes_report_and_figures(demo_run):
     assert report == json.loads(proc.stdout)
     cov = np.asarray(report["designs"]["default"]["covariance"])
     assert np.all(np.linalg.eigvalsh(cov) > 0)
+
+
+def test_the_demo_page_embeds_the_drawings_of_its_files(demo_run):
+    """Each design's estimates and convergence figures are both a PNG file and a figure of the page: drawn once
+    (the renderer draws a job asked for twice once), the page embeds the file's very bytes."""
+    proc, out = demo_run
+    assert proc.returncode == 0
+    assert_page_embeds_files(out, [f"{kind}_{design}.png" for kind in ("estimates", "convergence")
+                                   for design in ("default", "locked_q_step")])
 
 
 @pytest.mark.parametrize(

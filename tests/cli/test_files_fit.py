@@ -14,6 +14,7 @@ from drivecal.plan import waveforms as wf
 from drivecal.cli import main
 
 from conftest import NOISE, true_vector
+from helpers.cli import assert_page_embeds_files
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
@@ -55,6 +56,8 @@ def test_cli_simulate_then_fit(truth, tmp_path, capsys):
         assert abs(p["estimate"] - float(getattr(truth, name))) < 3 * p["se"]
     saved = json.loads((tmp_path / "out" / "report.json").read_text())
     assert saved["parameters"] == result["parameters"]
+    # Every PNG file is also a figure of the page: one drawing, the same bytes.
+    assert_page_embeds_files(tmp_path / "out", ["convergence.png", "estimates.png", "identifiability.png"])
 
 
 def test_phase_file_gives_the_same_calibration(example_benches, guess, tmp_path):

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import base64
+import re
+from pathlib import Path
+
 import pytest
 
 from drivecal.cli import main
@@ -43,3 +47,19 @@ def assert_plan_refused(document: dict, *needles: str, source: str = "p.toml") -
     assert message.startswith(f"{source}: ") and "\n" not in message
     for needle in needles:
         assert needle in message, (needle, message)
+
+
+def assert_page_embeds_files(directory: Path, names) -> None:
+    """``directory/report.html`` embeds each PNG file of ``names`` byte for byte (drawn once for both), shown at the
+    size the page's own resolution would give it (``report.FIG_DPI``; the files are at ``report.FILE_DPI``)."""
+    from drivecal.report import FIG_DPI, FILE_DPI
+
+    page = (directory / "report.html").read_text()
+    images = re.findall(r'<img alt="[^"]*"(?: width="(\d+)" height="(\d+)")? src="data:image/png;base64,([^"]+)"',
+                        page)
+    embedded = {base64.b64decode(data): (width, height) for width, height, data in images}
+    for name in names:
+        png = (directory / name).read_bytes()
+        assert png in embedded, name
+        width, height = (int.from_bytes(png[k:k + 4], "big") for k in (16, 20))
+        assert embedded[png] == (str(round(width * FIG_DPI / FILE_DPI)), str(round(height * FIG_DPI / FILE_DPI)))

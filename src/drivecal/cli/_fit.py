@@ -289,17 +289,18 @@ def _estimate_names(text: str) -> tuple[str, ...]:
 
 
 def _write_fit_outputs(cal, payload, out_dir, renderer):
-    from .._io import prepare_output_dir, write_bytes, write_json
-    from ..report import plots, write_html_report
+    from .._io import FILE_DPI, prepare_output_dir, write_bytes, write_json
+    from ..report import plots, report_title, write_html_report
 
     out = prepare_output_dir(out_dir)
     written = []
+    # The page's figures of the same name (named as the page names the fit): one drawing serves both.
     jobs = {
         "convergence.png": plots.convergence_job(cal),
         "estimates.png": plots.estimates_job(cal),
-        "identifiability.png": plots.identifiability_job({cal.source: cal.identifiability}),
+        "identifiability.png": plots.identifiability_job({report_title(payload) or "fit": cal.identifiability}),
     }
-    pending = {name: renderer.submit(kind, kwargs, dpi=110) for name, (kind, kwargs) in jobs.items()}
+    pending = {name: renderer.submit(kind, kwargs, dpi=FILE_DPI) for name, (kind, kwargs) in jobs.items()}
     write_json(out / "report.json", payload)
     write_html_report(payload, out / "report.html", renderer=renderer)
     for name, job in pending.items():

@@ -28,7 +28,7 @@ from ..results import Calibration, demo_document
 from ..physics import DEFAULT_MOTOR, ESTIMATED, MotorParams
 from ..plan import Plan, default_plan, locked_q_step_plan
 from ..report import build_result
-from .._io import prepare_output_dir, write_bytes, write_json
+from .._io import FILE_DPI, prepare_output_dir, write_bytes, write_json
 
 #: The datasheet guess the demo starts from, relative to the truth.
 GUESS_FACTORS = {"R": 1.5, "Ld": 0.6, "Lq": 1.4, "lambda_m": 0.7}
@@ -177,7 +177,7 @@ def write_demo_outputs(result: DemoResult, out_dir: str | Path, renderer=None) -
     jobs["identifiability.png"] = plots.identifiability_job(
         {result.default.label: result.default.calibration.identifiability,
          result.poor.label: result.poor.calibration.identifiability})
-    pending = {name: renderer.submit(kind, kwargs, dpi=110) for name, (kind, kwargs) in jobs.items()}
+    pending = {name: renderer.submit(kind, kwargs, dpi=FILE_DPI) for name, (kind, kwargs) in jobs.items()}
     doc = json.loads(json.dumps(result.to_dict(), allow_nan=False))
     write_json(out / "report.json", doc)
     # The page's figures queue behind the files' (the workers take those first, this process draws the page's

@@ -27,12 +27,16 @@ import numpy as np
 from ..identify import Identifiability
 from ..physics import UNITS
 from ..results import escape as _e, format_number as _fmt, summary_html
-from .._io import atomic_path
+from .._io import FILE_DPI, atomic_path
 from .._units import display_unit, format_value
 from ._sections import checks_html, kv_table, noise_row, plain_words_html, plan_html, quantity, setup_html
 
 #: Resolution of the embedded figures (dots per inch); fixed for byte-identical PNGs.
 FIG_DPI = 80
+#: The figures `fit --out` and `demo --out` also write as PNG files, embedded at the files' resolution
+#: (``_io.FILE_DPI``) and shown at :data:`FIG_DPI`'s size: the renderer draws a figure asked for twice once, so
+#: one drawing serves the page and the file.
+AT_FILE_DPI = ("estimates", "convergence", "identifiability")
 
 CSS = """
 body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;margin:1.5em auto;max-width:1250px;color:#222;
@@ -157,8 +161,8 @@ def figure_jobs(fit: Mapping[str, Any], label: str) -> list[tuple[str, tuple[str
         out.append(("Flux linkages and incremental inductances of the calibrated law with 95 % bands, over the "
                     "currents the test reached (dotted where extrapolated).", plots.flux_maps_job(fit["flux_maps"])))
     if cal.history is not None:
-        out.append(("Convergence: each fitted parameter per accepted LM step, divided by its final value.",
-                    plots.convergence_job(cal)))
+        out.append((f"Convergence: each fitted parameter per accepted LM step, divided by "
+                    f"{'the truth' if truth else 'its final value'}.", plots.convergence_job(cal, truth=true_vec)))
     out.append(("Identifiability before fitting: singular-value spectrum and per-parameter sensitivity "
                 "(dead parameters marked).", plots.identifiability_job({label: cal.identifiability})))
     if len(cal.fit_names) >= 2:
@@ -166,10 +170,24 @@ def figure_jobs(fit: Mapping[str, Any], label: str) -> list[tuple[str, tuple[str
     return out
 
 
-def _figures_html(figures: list[tuple[str, bytes]]) -> str:
+def page_dpi(name: str) -> int:
+    """The resolution a figure of ``report.plots`` is embedded at (dots per inch): see :data:`AT_FILE_DPI`."""
+    return FILE_DPI if name in AT_FILE_DPI else FIG_DPI
+
+
+def _figures_html(figures: list[tuple[str, str, bytes]]) -> str:
+    """``<figure>`` elements of (caption, job name, PNG bytes); one drawn at another resolution than
+    :data:`FIG_DPI` is shown at the size it would have there."""
+    def size(name: str, png: bytes) -> str:
+        dpi = page_dpi(name)
+        if dpi == FIG_DPI or png[12:16] != b"IHDR":
+            return ""
+        width, height = (int.from_bytes(png[k:k + 4], "big") for k in (16, 20))
+        return f' width="{round(width * FIG_DPI / dpi)}" height="{round(height * FIG_DPI / dpi)}"'
+
     return "".join(
-        f'<figure><img alt="{_e(cap)}" src="{png_data_uri(png)}"><figcaption>{_e(cap)}</figcaption></figure>'
-        for cap, png in figures
+        f'<figure><img alt="{_e(cap)}"{size(name, png)} src="{png_data_uri(png)}"><figcaption>{_e(cap)}</figcaption>'
+        "</figure>" for cap, name, png in figures
     )
 
 
@@ -199,9 +217,9 @@ def fit_section_html(fit: Mapping[str, Any], label: str, anchor: str,
     if figures is None:
         from .._figures import render
 
-        figures = [(cap, name, render(name, kwargs, FIG_DPI)) for cap, (name, kwargs) in figure_jobs(fit, label)]
-    main = _figures_html([(cap, png) for cap, name, png in figures if name not in DETAIL_FIGURES])
-    detail = _figures_html([(cap, png) for cap, name, png in figures if name in DETAIL_FIGURES])
+        figures = [(cap, name, render(name, kwargs, page_dpi(name))) for cap, (name, kwargs) in figure_jobs(fit, label)]
+    main = _figures_html([f for f in figures if f[1] not in DETAIL_FIGURES])
+    detail = _figures_html([f for f in figures if f[1] in DETAIL_FIGURES])
     prior = fit.get("prior") or {n: p.get("prior") for n, p in fit["parameters"].items()}
     prior_rows = [(n, quantity(v, UNITS.get(n, "-"))) for n, v in prior.items()]
     fixed_rows = [(n, quantity(v, UNITS.get(n, "-"))) for n, v in fit.get("fixed", {}).items()]
@@ -261,7 +279,7 @@ def render_html(result: Mapping[str, Any], *, generated: str | None = None, rend
         )
         overview = f"<h2>Verdicts</h2><ul class='overview'>{items}</ul>"
     jobs = {k: figure_jobs(f, _label(k, f, multi)) for k, f in fits.items()}
-    flat = [(name, kwargs, FIG_DPI) for k in fits for _, (name, kwargs) in jobs[k]]
+    flat = [(name, kwargs, page_dpi(name)) for k in fits for _, (name, kwargs) in jobs[k]]
     pngs = iter((renderer or FigureRenderer(0)).render_all(flat))
     sections = "".join(fit_section_html(f, k if multi else "Result", f"fit-{k}",
                                         [(cap, name, next(pngs)) for cap, (name, _) in jobs[k]])
