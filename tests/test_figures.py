@@ -84,6 +84,21 @@ def test_a_job_the_worker_cannot_draw_raises_in_the_caller():
         assert renderer.render_all(_jobs()[2:3]) == [_figures.render(*_jobs()[2])]
 
 
+@pytest.mark.skipif(not hasattr(os, "getpriority"), reason="process priorities are Unix's")
+def test_a_worker_runs_below_the_command_s_priority():
+    """The workers load matplotlib while the command computes; the command's own work goes first on the cores."""
+    proc = subprocess.Popen([sys.executable, "-c", _figures.WORKER_PROGRAM], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, env={**os.environ, "PYTHONPATH": SRC})
+    try:
+        assert _figures._receive(proc.stdout) is not None  # ready: matplotlib loaded
+        ours = os.getpriority(os.PRIO_PROCESS, 0)
+        assert os.getpriority(os.PRIO_PROCESS, proc.pid) == min(ours + _figures.WORKER_NICENESS, 19)
+    finally:
+        proc.stdin.close()
+        proc.wait(timeout=60)
+        proc.stdout.close()
+
+
 def test_the_worker_loads_no_jax():
     code = "import sys, drivecal._figures; print('jax' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
