@@ -52,6 +52,8 @@ def test_a_figure_asked_for_twice_is_drawn_once(monkeypatch):
     assert again is first
     assert renderer.render_all([(name, alike, dpi), _jobs()[3]]) == [b"convergence", b"correlation"]
     assert first.result() == b"convergence" and drawn == ["convergence", "correlation"]
+    renderer.forget()  # a renderer kept for many reports draws afresh
+    assert renderer.submit(name, kwargs, dpi) is not first
 
 
 def test_a_job_key_tells_apart_what_draws_differently():

@@ -191,6 +191,11 @@ class FigureRenderer:
             job.done.set()  # no workers: result() draws it here
         return job
 
+    def forget(self) -> None:
+        """Drop the jobs kept for reuse: a figure asked for after this is drawn again (a renderer kept for many
+        reports would otherwise hold every PNG it drew)."""
+        self._jobs.clear()
+
     def render_all(self, jobs: Sequence[tuple[str, Mapping[str, Any], int]]) -> list[bytes]:
         """PNG bytes of each ``(name, kwargs, dpi)``, drawn in parallel where workers run.
 
