@@ -186,7 +186,7 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
                                effects=selection.to_dict(), tolerance=motor_file.tolerance,
                                flux_maps=None if maps is None else maps.to_dict())
         if out_dir is not None:
-            written = _write_fit_outputs(cal, payload, out_dir, renderer)
+            written = _write_fit_outputs(payload, out_dir, renderer)
     status = Status(payload["verdict"]["status"])
     exit_code = _exit_code(status, payload.get("spec"))
     if as_json:
@@ -288,18 +288,15 @@ def _estimate_names(text: str) -> tuple[str, ...]:
     return names
 
 
-def _write_fit_outputs(cal, payload, out_dir, renderer):
+def _write_fit_outputs(payload, out_dir, renderer):
     from .._io import FILE_DPI, prepare_output_dir, write_bytes, write_json
-    from ..report import plots, report_title, write_html_report
+    from ..report import fit_figure_jobs, write_html_report
 
     out = prepare_output_dir(out_dir)
     written = []
-    # The page's figures of the same name (named as the page names the fit): one drawing serves both.
-    jobs = {
-        "convergence.png": plots.convergence_job(cal),
-        "estimates.png": plots.estimates_job(cal),
-        "identifiability.png": plots.identifiability_job({report_title(payload) or "fit": cal.identifiability}),
-    }
+    # The page's own figures of these names: one drawing serves the page and the file.
+    page = fit_figure_jobs(payload)
+    jobs = {f"{name}.png": page[name] for name in ("convergence", "estimates", "identifiability") if name in page}
     pending = {name: renderer.submit(kind, kwargs, dpi=FILE_DPI) for name, (kind, kwargs) in jobs.items()}
     write_json(out / "report.json", payload)
     write_html_report(payload, out / "report.html", renderer=renderer)

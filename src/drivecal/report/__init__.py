@@ -9,8 +9,8 @@ from ._firmware_loop import (MIN_PHASE_MARGIN, design_gains, loop_figures, loop_
 from ._gains import AXES, MAX_BANDWIDTH_FRACTION, SPECS, AxisGains, CurrentLoopDesign, Spread, design_current_loop
 from ._firmware import SQRT3, FirmwareConstant, FirmwareGains, firmware_gains, to_fixed
 from ._firmware_header import c_header
-from ._html import (CSS, FIG_DPI, FILE_DPI, figure_data_uri, fit_section_html, render_html, report_title, spec_html,
-                    verdict_html, write_html_report)
+from ._html import (CSS, FIG_DPI, FILE_DPI, figure_data_uri, fit_figure_jobs, fit_section_html, render_html,
+                    spec_html, verdict_html, write_html_report)
 from ._record import build_result
 from ..diagnose import segment_traces  # its home before drivecal.diagnose computed the verdicts
 # drivecal 0.1's flat `drivecal.report` module (atomic output, the plan as JSON) and `drivecal.record`'s readers,
@@ -21,7 +21,7 @@ from ..results import load_result, result_fits, select_fit
 
 __all__ = ["AXES", "AxisGains", "CSS", "CurrentLoopDesign", "FIG_DPI", "FILE_DPI", "FirmwareConstant", "FirmwareGains",
            "MAX_BANDWIDTH_FRACTION", "MIN_PHASE_MARGIN", "SPECS", "SQRT3", "Spread", "atomic_path", "build_result",
-           "c_header", "design_current_loop", "design_gains", "figure_data_uri", "firmware_gains", "fit_section_html",
+           "c_header", "design_current_loop", "design_gains", "figure_data_uri", "firmware_gains", "fit_figure_jobs", "fit_section_html",
            "load_result", "loop_figures", "loop_gain_for", "loop_metrics", "open_loop", "pi_gains", "plan_to_dict",
-           "prepare_output_dir", "reachable", "render_html", "report_title", "result_fits", "save_figure", "segment_traces",
+           "prepare_output_dir", "reachable", "render_html", "result_fits", "save_figure", "segment_traces",
            "select_fit", "spec_html", "to_fixed", "verdict_html", "write_html_report", "write_json"]

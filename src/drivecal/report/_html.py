@@ -170,6 +170,13 @@ def figure_jobs(fit: Mapping[str, Any], label: str) -> list[tuple[str, tuple[str
     return out
 
 
+def fit_figure_jobs(fit: Mapping[str, Any]) -> dict[str, tuple[str, dict[str, Any]]]:
+    """The figure jobs of the page of one fit's result JSON (as :func:`render_html` asks for them), by figure name:
+    a command that also writes some of them as PNG files (`fit --out`) asks for the same jobs, drawn once."""
+    fit = json.loads(json.dumps(fit, allow_nan=False))  # as the page reads it
+    return {job[0]: job for _, job in figure_jobs(fit, _label("fit", fit, False))}
+
+
 def page_dpi(name: str) -> int:
     """The resolution a figure of ``report.plots`` is embedded at (dots per inch): see :data:`AT_FILE_DPI`."""
     return FILE_DPI if name in AT_FILE_DPI else FIG_DPI
