@@ -1,4 +1,5 @@
-"""The compilation cache never keeps a kernel that would crash the process loading it (drivecal/_setup.py).
+"""The process set-up of drivecal/_setup.py: the compilation cache never keeps a kernel that would crash the
+process loading it, and XLA:CPU compiles a model's rollout loop as one kernel.
 
 jaxlib 0.9.2's XLA:CPU serialises a kernel of many object files (the saturating flux model's fit, 425
 objects) into a cache entry that kills the next process with SIGSEGV while it loads it: every second
@@ -8,11 +9,13 @@ on stand-in kernels.
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import pytest
 from jax._src import compilation_cache
 
 from drivecal import _setup
-from drivecal._setup import MAX_CACHED_OBJECTS
+from drivecal._setup import MAX_CACHED_OBJECTS, SMALL_LOOP_BYTES, with_small_loops
 
 
 class _Kernel:
@@ -60,3 +63,21 @@ def test_a_kernel_the_lowered_cache_keeps_is_serialised_once_and_not_written_twi
     assert written == [] and latest == (kernel, kernel.serialize())
     compilation_cache.put_executable_and_time("plain", "jit_fit", kernel, None, 1.0)
     assert written == ["plain"]
+
+
+def test_the_small_loop_threshold_joins_the_flags_and_leaves_a_users_backend_options_alone():
+    option = f"--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold={SMALL_LOOP_BYTES}"
+    assert with_small_loops("") == option
+    assert with_small_loops("--xla_force_host_platform_device_count=2") == (
+        f"--xla_force_host_platform_device_count=2 {option}")
+    own = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=0"
+    assert with_small_loops(own) == own
+
+
+def test_a_loop_over_more_than_xlas_default_bytes_is_compiled_as_one_kernel():
+    """The threshold reached XLA: a loop whose iteration moves ~80 kB (XLA:CPU hoists under 1 kB by default)
+    is compiled as one kernel (XLA marks its call ``xla_cpu_small_call``), as a model's rollout is."""
+    def sweep(x):
+        return jax.lax.scan(lambda c, u: (jnp.sin(c) * 0.9 + u, c[0]), jnp.zeros(10_000), x)[1]
+
+    assert "xla_cpu_small_call" in jax.jit(sweep).lower(jnp.ones(50)).compile().as_text()

@@ -19,10 +19,31 @@ def cache_enabled() -> bool:
     return os.environ.get("DRIVECAL_JAX_CACHE", "1").strip().lower() not in ("0", "off", "false", "no")
 
 
+#: XLA:CPU compiles a while loop that accesses fewer bytes than this as one kernel (its small-while-loop
+#: hoisting; 1 kB by default). Above it, each iteration dispatches its fused operations one by one, and a
+#: model's rollout (a scan over the samples, a few scalar states and their tangents) is nearly all dispatch:
+#: examples/inverter_bench.csv's dead-time Jacobian (1 400 samples, 4 RK4 sub-steps) ran in 143 ms, as one
+#: kernel in 18 ms, the same numbers to 4e-18 relative; 11 200 samples, 1.1 s -> 0.2 s. Large enough for a
+#: batch's chunk too, which ran as fast (docs/performance.md, stop 61).
+SMALL_LOOP_BYTES = 100_000_000
+
+
+def with_small_loops(flags: str) -> str:
+    """``flags`` (an ``XLA_FLAGS`` value) with :data:`SMALL_LOOP_BYTES` as XLA:CPU's small-loop threshold; where
+    ``flags`` already set XLA's backend options (a user's own), unchanged."""
+    if "xla_backend_extra_options" in flags:
+        return flags
+    option = f"--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold={SMALL_LOOP_BYTES}"
+    return f"{flags} {option}".strip()
+
+
 if cache_enabled():
     # XLA:CPU logs a harmless machine-feature line at ERROR level on every
     # cache hit; keep C++ logging to fatal errors unless the user chose a level.
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+# Read by XLA once, when JAX starts its CPU backend (after this import, at the first computation); JAX's
+# compilation cache keys on it, so kernels compiled without it are not loaded with it.
+os.environ["XLA_FLAGS"] = with_small_loops(os.environ.get("XLA_FLAGS", ""))
 
 import jax  # noqa: E402
 
