@@ -18,6 +18,10 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 import drivecal as dc  # noqa: E402
+# JAX set up as a command sets it up (float64, XLA's small-loop threshold in XLA_FLAGS: drivecal/_setup.py)
+# before any fixture starts it: jaxonomy, imported below, starts JAX's backend at its import, and XLA reads
+# its flags then.
+import drivecal.physics  # noqa: E402, F401
 
 NOISE = 0.02  # A, the default sensor noise
 

@@ -42,7 +42,9 @@ if cache_enabled():
     # cache hit; keep C++ logging to fatal errors unless the user chose a level.
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 # Read by XLA once, when JAX starts its CPU backend (after this import, at the first computation); JAX's
-# compilation cache keys on it, so kernels compiled without it are not loaded with it.
+# compilation cache keys on it, so kernels compiled without it are not loaded with it. A process that started
+# JAX before importing drivecal (importing jaxonomy does) keeps XLA's flags as they were: rollouts as slow as
+# before, their numbers the same to rounding.
 os.environ["XLA_FLAGS"] = with_small_loops(os.environ.get("XLA_FLAGS", ""))
 
 import jax  # noqa: E402
