@@ -1,4 +1,4 @@
-"""Process set-up every numeric sub-package needs first: float64 and the compilation cache.
+"""Process set-up every numeric sub-package needs first: float64, XLA's small-loop threshold and the compilation cache.
 
 Imported by each sub-package's ``__init__`` before anything of JAX runs
 (``from .. import _setup``), so ``import drivecal`` itself stays light (the
