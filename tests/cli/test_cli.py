@@ -265,6 +265,49 @@ def test_the_program_collects_garbage_less_often_a_caller_in_python_keeps_its_se
     assert main(["--version"]) == 0 and gc.get_threshold() == before
 
 
+# The program's linear algebra, seen from inside its command: the variable it set and, where NumPy's OpenBLAS is
+# a bundled library that says (a NumPy wheel's), how many threads OpenBLAS runs.
+_BLAS_PROGRAM = """
+import ctypes, glob, os, sys
+from drivecal.cli import _common
+run = _common._run
+
+def openblas_threads():
+    import numpy
+    for path in glob.glob(os.path.join(os.path.dirname(numpy.__file__) + ".libs", "libscipy_openblas*")):
+        library = ctypes.CDLL(path)
+        for name in ("scipy_openblas_get_num_threads64_", "openblas_get_num_threads64_", "openblas_get_num_threads"):
+            if hasattr(library, name):
+                return getattr(library, name)()
+    return "unknown"
+
+_common._run = lambda argv: print(os.environ.get("OPENBLAS_NUM_THREADS"), openblas_threads(), flush=True) or run(argv)
+sys.argv = ["drivecal", "--version"]
+sys.exit(_common.main())
+"""
+
+
+@pytest.mark.parametrize("given, variable, threads", [({}, "1", "1"), ({"OMP_NUM_THREADS": "2"}, "None", "2"),
+                                                      ({"OPENBLAS_NUM_THREADS": "2"}, "2", "2")])
+def test_the_program_runs_its_linear_algebra_in_one_thread_unless_told(given, variable, threads):
+    """The drivecal program sets OpenBLAS to one thread before NumPy loads (its second thread only spun), unless
+    a variable that sets it is given; ``main(argv)`` called from Python leaves the environment alone."""
+    import os
+    import subprocess
+    import sys
+
+    blas = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")  # OpenBLAS reads the first one set
+    env = {k: v for k, v in os.environ.items() if k not in blas} | given
+    proc = subprocess.run([sys.executable, "-c", _BLAS_PROGRAM], capture_output=True, text=True, timeout=120, env=env)
+    assert proc.returncode == 0, proc.stderr
+    seen_variable, seen_threads = proc.stdout.splitlines()[0].split()
+    assert seen_variable == variable
+    if seen_threads != "unknown" and (threads == "1" or (os.cpu_count() or 1) >= 2):
+        assert seen_threads == threads
+    before = dict(os.environ)
+    assert main(["--version"]) == 0 and dict(os.environ) == before
+
+
 def test_fit_exit_status_is_the_verdicts(tmp_path, poor_bench, capsys):
     """0 only for 'calibrated'; partial, mismatch and not converged each their own status, none of them 2."""
     from drivecal.results import Status
