@@ -8,7 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from drivecal._stats import MAD_TO_SD, chi2_sf, fast_median, next_power_of_two, robust_centre_scale, robust_z, t_ppf
+from drivecal._stats import (MAD_TO_SD, chi2_isf, chi2_sf, fast_median, next_power_of_two, robust_centre_scale, robust_z,
+                             t_ppf)
 
 
 def test_robust_z_is_median_over_mad_as_the_fleet_check_computed_it():
@@ -74,3 +75,34 @@ def test_distributions_are_scipy_stats_bit_for_bit():
         np.testing.assert_array_equal(chi2_sf(x, k), stats.chi2.sf(x, k))
         np.testing.assert_array_equal(chi2_sf(x.reshape(-1, 2), k), stats.chi2.sf(x.reshape(-1, 2), k))
         assert all(chi2_sf(v, k) == stats.chi2.sf(v, k) for v in x[:50])
+
+
+def test_chi2_isf_is_scipy_stats_bit_for_bit():
+    from scipy import stats
+
+    for k in (1, 2, 10, 20):
+        for p in (1e-12, 1e-3, 0.05, 0.5, 0.999):
+            assert chi2_isf(p, k) == stats.chi2.isf(p, k)
+
+
+# A fresh interpreter: drivecal's distributions first, then SciPy's own packages, as a user's script might.
+_FIRST_THEN_SCIPY = """
+import sys
+from drivecal._stats import chi2_isf, chi2_sf, t_ppf
+values = (t_ppf(0.975, 7), chi2_sf(3.0, 2), chi2_isf(0.05, 10))
+print("f2py" if "numpy.f2py" in sys.modules else "no f2py", "scipy.special" in sys.modules)
+from scipy import special, stats
+print(values == (stats.t.ppf(0.975, 7), stats.chi2.sf(3.0, 2), stats.chi2.isf(0.05, 10)),
+      special.stdtrit is sys.modules["scipy.special._ufuncs"].stdtrit, special.gamma(5.0))
+"""
+
+
+def test_the_distributions_load_scipys_compiled_functions_alone_and_scipy_still_imports_whole():
+    """The first call loads ``scipy.special``'s compiled functions without its array-API layer (which imports
+    numpy.f2py: ~0.13 s a process) and leaves no package behind; SciPy's packages then import as usual."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _FIRST_THEN_SCIPY], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines() == ["no f2py False", "True True 24.0"]

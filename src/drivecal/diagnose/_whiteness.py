@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from .._stats import chi2_sf
+from .._stats import chi2_isf, chi2_sf
 from . import _ljung_box_table as _table
 
 #: Lags of the Ljung-Box whiteness test.
@@ -66,12 +66,6 @@ def ljung_box(x: np.ndarray, lags: int = WHITENESS_LAGS) -> tuple[Any, Any]:
     return (float(q), float(p)) if x.ndim == 1 else (q, p)
 
 
-def _chi2_isf(p: float, dof: int) -> float:
-    from scipy import special
-
-    return float(special.chdtri(dof, p))
-
-
 def _row_log_sf(q: np.ndarray, row: int) -> np.ndarray:
     """log P(Q >= q) at the tabulated length ``LENGTHS[row]``: log-linear between the tabulated quantiles, a
     chi^2(LAGS) scaled to the first or last quantile outside them."""
@@ -79,8 +73,8 @@ def _row_log_sf(q: np.ndarray, row: int) -> np.ndarray:
     log_tails = np.log(np.asarray(_table.TAILS, dtype=float))
     inside = np.interp(q, quantiles, log_tails)
     with np.errstate(divide="ignore"):
-        below = np.log(chi2_sf(q * (_chi2_isf(_table.TAILS[0], _table.LAGS) / quantiles[0]), _table.LAGS))
-        above = np.log(chi2_sf(q * (_chi2_isf(_table.TAILS[-1], _table.LAGS) / quantiles[-1]), _table.LAGS))
+        below = np.log(chi2_sf(q * (chi2_isf(_table.TAILS[0], _table.LAGS) / quantiles[0]), _table.LAGS))
+        above = np.log(chi2_sf(q * (chi2_isf(_table.TAILS[-1], _table.LAGS) / quantiles[-1]), _table.LAGS))
     return np.where(q < quantiles[0], below, np.where(q > quantiles[-1], above, inside))
 
 
