@@ -8,8 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from drivecal._stats import (MAD_TO_SD, chi2_isf, chi2_sf, fast_median, next_power_of_two, robust_centre_scale, robust_z,
-                             t_ppf)
+from drivecal._stats import (MAD_TO_SD, chi2_isf, chi2_sf, fast_median, next_power_of_two, robust_centre_scale,
+                             robust_z, t_ppf)
 
 
 def test_robust_z_is_median_over_mad_as_the_fleet_check_computed_it():

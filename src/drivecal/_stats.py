@@ -1,4 +1,4 @@
-"""drivecal's statistics, each written once: two distribution functions, a fast median, robust z-scores
+"""drivecal's statistics, each written once: three distribution functions, a fast median, robust z-scores
 and power-of-two batch sizes.
 
 ``t_ppf``, ``chi2_sf`` and ``chi2_isf`` come straight from ``scipy.special``'s compiled
@@ -31,8 +31,8 @@ def _special_functions() -> Any:
     compiled functions themselves ~0.03 s, measured in a fresh process). drivecal needs the
     functions only: their module is imported under a stand-in for its package (its spec, not run),
     which is taken away at once, so a later ``import scipy.special`` runs the package as usual and
-    finds the module already loaded (the same functions). Where SciPy is already imported, or the
-    stand-in fails (another SciPy layout), the package is imported as usual.
+    finds the module already loaded (the same functions). Where ``scipy.special`` is already imported,
+    or the stand-in fails (another SciPy layout), the package is imported as usual.
     """
     global _UFUNCS
     with _UFUNCS_LOCK:
