@@ -35,7 +35,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path(__file__).parent / "results" / "bench_kernel_load.json"
-BLAS_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
 VARIANTS = {"default": {}, "no tracebacks": {"JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS": "0"}}
 #: Runs the CLI with drivecal's executable loader timed per thread; prints the totals to stderr as JSON.
 RUN_TIMED = """
@@ -103,13 +102,15 @@ def main() -> None:
     options = parser.parse_args()
     from rich.console import Console
     from rich.markup import escape
+
+    from drivecal.cli._common import BLAS_THREAD_VARIABLES
     from rich.table import Table
 
     console = Console(width=150)
     with tempfile.TemporaryDirectory() as root:
         # The drivecal program sets OpenBLAS to one thread where no variable does (cli._common.main); the timed
         # runs import drivecal before main() runs, so the variable is set for them here.
-        blas = {} if any(os.environ.get(n) for n in BLAS_VARIABLES) else {"OPENBLAS_NUM_THREADS": "1"}
+        blas = {} if any(os.environ.get(n) for n in BLAS_THREAD_VARIABLES) else {BLAS_THREAD_VARIABLES[0]: "1"}
         envs = {v: {**os.environ, **blas, **extra, "DRIVECAL_JAX_CACHE_DIR": str(Path(root) / str(i))}
                 for i, (v, extra) in enumerate(VARIANTS.items())}
         cold = {v: _run(options.command, env)[0] for v, env in envs.items()}

@@ -35,9 +35,10 @@ def _special_functions() -> Any:
     or the stand-in fails (another SciPy layout), the package is imported as usual.
     """
     global _UFUNCS
-    with _UFUNCS_LOCK:
-        if _UFUNCS is None:
-            _UFUNCS = _load_special_functions()
+    if _UFUNCS is None:  # every call after the first one takes no lock
+        with _UFUNCS_LOCK:
+            if _UFUNCS is None:
+                _UFUNCS = _load_special_functions()
     return _UFUNCS
 
 
