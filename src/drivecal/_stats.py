@@ -92,6 +92,11 @@ def fast_median(x: np.ndarray, axis: int = 0) -> Any:
     return 0.5 * (np.take(part, (n - 1) // 2, axis=axis) + np.take(part, n // 2, axis=axis))
 
 
+#: Lags of the Ljung-Box whiteness test (``diagnose.ljung_box``).
+WHITENESS_LAGS = 10
+#: Family-wise false-alarm rate of the whiteness tests of one fit (``diagnose.whiteness_rule``).
+WHITENESS_ALPHA = 1e-3
+
 #: Scale of the median absolute deviation to the standard deviation of a normal sample (1 / Phi^-1(3/4)).
 MAD_TO_SD = 1.4826
 

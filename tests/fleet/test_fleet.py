@@ -204,3 +204,18 @@ def test_the_old_status_constants_are_the_status_labels():
     assert (fleet.STATUS_CALIBRATED, fleet.STATUS_PARTIAL, fleet.STATUS_NOT_CONVERGED, fleet.STATUS_INVALID) == (
         "calibrated", "partially calibrated", "not converged", "invalid file")
     assert fleet.STATUS_PARTIAL == Status.PARTIAL.label and Status.from_label(fleet.STATUS_INVALID) is Status.INVALID
+
+
+def test_every_name_the_fleet_package_lists_loads_on_first_use():
+    """``drivecal.fleet`` loads its modules when a name is first asked for (the fleet report needs no JAX): each
+    listed name resolves to its module's object, and a name it does not list is an AttributeError."""
+    import importlib
+
+    for name in fleet.__all__:
+        value = getattr(fleet, name)
+        owner = getattr(value, "__module__", None)
+        if owner is not None and owner.startswith("drivecal.fleet."):
+            assert getattr(importlib.import_module(owner), name) is value
+    assert sorted(set(fleet.__all__)) == sorted(fleet.__all__)
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        fleet.nope  # noqa: B018

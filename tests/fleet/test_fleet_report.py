@@ -168,3 +168,28 @@ def test_the_old_figure_functions_use_the_robust_range_and_cost_the_same_for_mor
         artists.append([len(ax.get_children()) for ax in fig.axes])
         plt.close(fig)
     assert artists[0] == artists[1]  # whole-array drawing: no artist per motor
+
+
+# `drivecal fleet-report` as a fresh process runs it: the page drawn, then what the process had loaded.
+_REPORT_PROGRAM = """
+import sys
+from drivecal.cli import main
+
+assert main(["fleet-report", sys.argv[1], "--html", sys.argv[2]]) == 0
+print(sorted(m for m in ("jax", "jaxlib", "equinox", "drivecal.physics", "drivecal.model", "drivecal.fitting")
+             if m in sys.modules))
+"""
+
+
+def test_the_fleet_report_loads_nothing_of_jax_or_the_fitting_stack(table, tmp_path):
+    """The page is pandas and matplotlib: JAX and the model (~0.6 s of imports) are not loaded for it."""
+    import subprocess
+    import sys
+
+    results, out = tmp_path / "results.parquet", tmp_path / "fleet.html"
+    table.to_parquet(results, index=False)
+    proc = subprocess.run([sys.executable, "-c", _REPORT_PROGRAM, str(results), str(out)], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines()[-1] == "[]"
+    assert "fleet-data" in out.read_text(encoding="utf-8")

@@ -38,7 +38,7 @@ def fleet_report(results, html_out, motor_path, trend_by):
     line = (f"wrote {target}: {len(table)} motors, {len(outliers)} outlier(s)"
             + (": " + ", ".join(outliers) if outliers else ""))
     if "spec" in table:
-        from ..results import Spec
+        from .._status import Spec
 
         counts = table["spec"].value_counts()
         line += "; specification: " + ", ".join(f"{int(counts[s.label])} {s.label}" for s in Spec

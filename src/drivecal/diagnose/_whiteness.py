@@ -27,13 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from .._stats import chi2_isf, chi2_sf
+from .._stats import WHITENESS_ALPHA, WHITENESS_LAGS, chi2_isf, chi2_sf
 from . import _ljung_box_table as _table
-
-#: Lags of the Ljung-Box whiteness test.
-WHITENESS_LAGS = 10
-#: Family-wise false-alarm rate of the whiteness tests of one fit.
-WHITENESS_ALPHA = 1e-3
 
 
 def ljung_box(x: np.ndarray, lags: int = WHITENESS_LAGS) -> tuple[Any, Any]:

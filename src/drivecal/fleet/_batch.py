@@ -45,7 +45,8 @@ from ._effects import select_for
 from ..model import model_experiment
 from ..data import MotorFile
 from ..results import Spec, Status, content_sha256, result_message
-from ._checks import DEFAULT_OUTLIER_Z, FLEET_COLUMNS, fleet_checks, residual_diagnostics, spec_checks
+from ._checks import FLEET_COLUMNS, fleet_checks, residual_diagnostics, spec_checks
+from ._report_stats import DEFAULT_OUTLIER_Z
 from ._inputs import discover, motors_in, prefetch as _prefetch, serial_of
 from ._cluster import stopped
 from ._runners import run_chunks, tune_if_dask_worker

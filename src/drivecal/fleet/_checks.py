@@ -17,9 +17,7 @@ from ..diagnose import ljung_box, whiteness_rule
 from ..physics import ESTIMATED
 from ..data import Tolerance
 from ..results import FAIL, INCONCLUSIVE, Spec, Status, judge_arrays
-
-#: Robust z-score beyond which a parameter marks a motor as an outlier.
-DEFAULT_OUTLIER_Z = 5.0
+from ._report_stats import DEFAULT_OUTLIER_Z
 
 #: The columns :func:`fleet_checks` and :func:`spec_checks` add (besides ``z_<name>``): a batch's rows before
 #: the checks lack them.
@@ -75,13 +73,6 @@ def fleet_checks(table: pd.DataFrame, threshold: float = DEFAULT_OUTLIER_Z) -> p
     out["outlier_params"] = flagged.map(", ".join)
     out["outlier_z"] = float(threshold)
     return out
-
-
-def outlier_z_of(table: pd.DataFrame) -> float:
-    """The outlier threshold a results table was checked at: its ``outlier_z`` column, or
-    :data:`DEFAULT_OUTLIER_Z` for a table written before the column was recorded."""
-    recorded = table["outlier_z"].dropna() if "outlier_z" in table else ()
-    return float(recorded.iloc[0]) if len(recorded) else DEFAULT_OUTLIER_Z
 
 
 def spec_checks(table: pd.DataFrame, tolerance: dict[str, Tolerance]) -> pd.DataFrame:

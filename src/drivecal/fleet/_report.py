@@ -27,13 +27,13 @@ import numpy as np
 import pandas as pd
 
 from ..errors import DrivecalError
-from ..physics import ESTIMABLE, ESTIMATED
-from ..report import CSS, figure_data_uri
-from ..results import Spec, Status
 from .._io import atomic_path
-from ._checks import outlier_z_of
+from .._page import CSS, figure_data_uri
+from .._parameters import ESTIMABLE, ESTIMATED
+from .._status import Spec, Status
 from ._report_stats import (BAND_K, DRIFT_FRACTION, DRIFT_NOISE_SD, USABLE, ParameterView, drift_noise, drift_threshold,
-                            false_alarm_rates, line_positions, natural_order, parameter_view, time_columns)
+                            false_alarm_rates, line_positions, natural_order, outlier_z_of, parameter_view,
+                            time_columns)
 
 #: The table's status words counted in the summary, in its order.
 _SUMMARY = (Status.CALIBRATED, Status.PARTIAL, Status.NOT_CONVERGED, Status.INVALID)
@@ -369,7 +369,7 @@ def fleet_histograms(table, names=None, threshold=None):
         threshold: the band's half-width in robust SDs (default: the run's ``--outlier-z``, as the
             table records it; ``DEFAULT_OUTLIER_Z`` for a table written before it was recorded).
     """
-    from ..report.plots import plt
+    from .._figure_kinds import plt
     from ._report_figures import draw_histogram
 
     threshold = outlier_z_of(table) if threshold is None else float(threshold)
@@ -384,7 +384,7 @@ def fleet_histograms(table, names=None, threshold=None):
 
 def fleet_trends(table, names=None):
     """Each estimate against the serial (natural order), with its rolling median and band; outliers in red."""
-    from ..report.plots import plt
+    from .._figure_kinds import plt
     from ._report_figures import draw_trend, serial_ticks
 
     threshold = outlier_z_of(table)

@@ -181,7 +181,7 @@ def serial_ticks(table_serials: np.ndarray, rank: np.ndarray, count: int = 8) ->
 def parameter_figure(view: ParameterView, threshold: float, *, x_label: str,
                      serial_tick_marks: tuple[np.ndarray, np.ndarray] | None = None):
     """One parameter: its trend along the line (left) and its histogram on the same value axis (right)."""
-    from ..report.plots import plt
+    from .._figure_kinds import plt
 
     fig, (ax_t, ax_h) = plt.subplots(1, 2, figsize=(14.0, 3.4), sharey=True,
                                      gridspec_kw={"width_ratios": [4.2, 1.0], "wspace": 0.04})

@@ -38,10 +38,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .._stats import robust_centre_scale
-from ..diagnose import WHITENESS_ALPHA, WHITENESS_LAGS
-from ..physics import UNITS
-from ..results import Status
+from .._parameters import UNITS
+from .._stats import WHITENESS_ALPHA, WHITENESS_LAGS, robust_centre_scale
+from .._status import Status
 
 #: Half-width of the rolling band, in robust SDs (from the rolling interquartile range).
 BAND_K = 2.0
@@ -59,6 +58,9 @@ INTERVAL_LEVEL = 0.95
 TIME_COLUMNS = ("test_time", "tested_at", "timestamp", "time", "date", "datetime")
 #: Statuses whose estimates are usable (drawn and summarised).
 USABLE = (Status.CALIBRATED.label, Status.PARTIAL.label)
+#: Robust z-score beyond which a parameter marks a motor as an outlier (``drivecal batch --outlier-z``).
+DEFAULT_OUTLIER_Z = 5.0
+
 #: The standard normal's IQR, to turn an interquartile range into a robust SD.
 _IQR_TO_SD = 1.0 / 1.3489795003921634
 
@@ -71,6 +73,13 @@ _SYMBOLS: dict[str, tuple[str, bool]] = {
     "encoder_offset": ("rad", True),
 }
 _PREFIXES = {-9: "n", -6: "µ", -3: "m", 0: "", 3: "k"}
+
+
+def outlier_z_of(table: pd.DataFrame) -> float:
+    """The outlier threshold a results table was checked at: its ``outlier_z`` column, or
+    :data:`DEFAULT_OUTLIER_Z` for a table written before the column was recorded."""
+    recorded = table["outlier_z"].dropna() if "outlier_z" in table else ()
+    return float(recorded.iloc[0]) if len(recorded) else DEFAULT_OUTLIER_Z
 
 
 def natural_key(serial: Any) -> tuple:

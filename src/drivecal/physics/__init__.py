@@ -3,12 +3,14 @@ voltage error and delay, the magnetic saturation (flux linkages as states), the 
 
 from .. import _setup  # noqa: F401  (float64 and the compilation cache, before any JAX work)
 from ._inverter import bridge_error, dead_time_error, stable_dead_width, switching_ripple
-from ._magnetics import (EXPONENT_CANDIDATES, EXPONENTS, MAGNETIC, MagnetPoint, currents_of_flux, flux_derivatives,
-                         flux_of_currents, flux_torque, from_hinkkanen, from_lelli, has_bridge, hinkkanen_coefficients,
-                         hinkkanen_law, incremental_inductances, is_saturating, magnet_point)
-from ._motor import (ADDITIVE_SCALE, BRIDGE, BRIDGE_SHAPE, DEFAULT_MOTOR, DESCRIPTIONS, DqCoefficients, ESTIMABLE,
-                     ESTIMATED, FIXED, MECHANICAL, MotorParams, NUISANCE, SETTINGS, UNITS, coulomb_friction,
-                     dq_coefficients, dq_derivatives, dq_derivatives_from, from_search, parameter_values, resistance_at, search_scale, to_search, with_d_flux)
+from .._parameters import (ADDITIVE_SCALE, BRIDGE, BRIDGE_SHAPE, DESCRIPTIONS, ESTIMABLE, ESTIMATED, EXPONENTS, FIXED,
+                           MAGNETIC, MECHANICAL, NUISANCE, SETTINGS, UNITS)
+from ._magnetics import (EXPONENT_CANDIDATES, MagnetPoint, currents_of_flux, flux_derivatives, flux_of_currents,
+                         flux_torque, from_hinkkanen, from_lelli, has_bridge, hinkkanen_coefficients, hinkkanen_law,
+                         incremental_inductances, is_saturating, magnet_point)
+from ._motor import (DEFAULT_MOTOR, DqCoefficients, MotorParams, coulomb_friction, dq_coefficients, dq_derivatives,
+                     dq_derivatives_from, from_search, parameter_values, resistance_at, search_scale, to_search,
+                     with_d_flux)
 from ._sensors import delayed, encoder_frame, rotor_frame, sensor_offsets, with_dq_offsets
 from ._transforms import abc_to_dq, clarke, dq_to_abc, inverse_clarke, inverse_park, park
 

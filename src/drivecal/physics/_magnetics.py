@@ -55,7 +55,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._motor import BRIDGE, EXPONENTS, MAGNETIC, coulomb_friction
+from .._parameters import BRIDGE, EXPONENTS, MAGNETIC
+from ._motor import coulomb_friction
 
 #: Per coefficient, the exponents it uses and the candidate values a fit chooses among (the data's best).
 EXPONENT_CANDIDATES: dict[str, tuple[tuple[str, ...], tuple[tuple[float, ...], ...]]] = {

@@ -9,8 +9,8 @@ from ._firmware_loop import (MIN_PHASE_MARGIN, design_gains, loop_figures, loop_
 from ._gains import AXES, MAX_BANDWIDTH_FRACTION, SPECS, AxisGains, CurrentLoopDesign, Spread, design_current_loop
 from ._firmware import SQRT3, FirmwareConstant, FirmwareGains, firmware_gains, to_fixed
 from ._firmware_header import c_header
-from ._html import (CSS, FIG_DPI, FILE_DPI, figure_data_uri, fit_figure_jobs, fit_section_html, render_html,
-                    spec_html, verdict_html, write_html_report)
+from ._html import FILE_DPI, fit_figure_jobs, fit_section_html, render_html, spec_html, verdict_html, write_html_report
+from .._page import CSS, FIG_DPI, figure_data_uri  # the HTML pages' (the fleet report's too)
 from ._record import build_result
 from ..diagnose import segment_traces  # its home before drivecal.diagnose computed the verdicts
 # drivecal 0.1's flat `drivecal.report` module (atomic output, the plan as JSON) and `drivecal.record`'s readers,

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 import numpy as np
 
 from .. import _figure_kinds
-from .._figure_kinds import plt  # noqa: F401  (pyplot on the Agg backend, for the fleet report's figures)
+from .._figure_kinds import plt  # noqa: F401  (pyplot on the Agg backend, as drivecal's figures draw with it)
 from ..physics import UNITS
 
 if TYPE_CHECKING:
