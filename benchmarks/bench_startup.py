@@ -17,11 +17,14 @@ so neither pays for the console-script wrapper; before timing, each side checks 
 Imports before work: for each command, a fresh process imports what the command imports before
 its first computation (:data:`BEFORE_WORK`: its module, the imports at the top of its body and
 those of the helpers it calls first, such as ``--motor``'s loader) and reports that wall time,
-timed inside the process (the interpreter's own start-up left out). What the work itself
+timed inside the process (the interpreter's own start-up left out), with the garbage collector
+set as the ``drivecal`` program sets it before its imports. What the work itself
 imports later (pandas inside the bench loader, scipy.special at the first interval) is not in
 it: for that, time whole commands (bench_workflow.py). The baseline here is the tree before the
-imports were made lazy (commit 76b0222, a detached worktree in /tmp/drivecal-imports-baseline);
-the two trees' runs alternate.
+imports were made lazy (commit 76b0222, a detached worktree in /tmp/drivecal-imports-baseline;
+``--imports-baseline-commit`` names another, e.g. a stop's start); the two trees' runs alternate.
+``fleet-report`` is the command without ``--motor`` (the page alone), ``fleet-report --motor``
+with it (its loader reads the motor file).
 
 Prints two tables and writes benchmarks/results/bench_startup.json.
 
@@ -64,7 +67,9 @@ BEFORE_WORK: dict[str, tuple[str, ...]] = {
                "drivecal.data"),
     "fit": ("drivecal.cli._fit", "rich.markup", "drivecal.data", "drivecal.diagnose", "drivecal.identify",
             "drivecal.report", "drivecal.results", "drivecal.selection"),
-    "fleet-report": ("drivecal.cli._fleet_report", "drivecal.fleet", "drivecal.data", "drivecal.physics"),
+    "fleet-report": ("drivecal.cli._fleet_report", "drivecal.fleet", "drivecal.fleet._report"),
+    "fleet-report --motor": ("drivecal.cli._fleet_report", "drivecal.fleet", "drivecal.data", "drivecal.physics",
+                             "drivecal.fleet._report"),
     "gains": ("drivecal.cli._gains", "drivecal.errors", "drivecal._io", "drivecal.fitting", "drivecal.report",
               "drivecal.results"),
     "inspect": ("drivecal.cli._inspect", "rich.markup", "rich.table", "drivecal._io", "drivecal.data"),
@@ -77,7 +82,8 @@ BEFORE_WORK: dict[str, tuple[str, ...]] = {
 BASELINE_ONLY: dict[str, tuple[str, ...]] = {"demo": ("drivecal._figures",)}
 #: Heavy libraries: which of them a command has loaded when its work starts (a column of the table).
 HEAVY = ("jax", "optimistix", "pandas", "pyarrow", "scipy.special", "matplotlib", "jaxonomy")
-IMPORT_TIMER = ("import importlib, json, sys, time\n"
+IMPORT_TIMER = ("import gc, importlib, json, sys, time\n"
+                "gc.set_threshold(int(sys.argv.pop(1)), *gc.get_threshold()[1:])\n"
                 "t0 = time.perf_counter()\n"
                 "for name in sys.argv[1:]:\n"
                 "    importlib.import_module(name)\n"
@@ -130,8 +136,12 @@ def time_runs(src: Path, args: list[str], runs: int) -> list[float]:
 
 def time_imports(src: Path, modules: tuple[str, ...]) -> tuple[float, list[str]]:
     """Wall time [s] of importing ``modules`` in a fresh process, and the heavy libraries then loaded."""
-    proc = subprocess.run([sys.executable, "-c", IMPORT_TIMER, *modules], capture_output=True, text=True,
-                          env=env_for(src))
+    # The drivecal program imports with the garbage collector's youngest generation raised (cli._common.main; this
+    # tree's setting for both trees): without it, the full collections it avoids were ~0.1 s of a command's imports.
+    from drivecal.cli._common import YOUNG_GENERATION
+
+    proc = subprocess.run([sys.executable, "-c", IMPORT_TIMER, str(YOUNG_GENERATION), *modules], capture_output=True,
+                          text=True, env=env_for(src))
     if proc.returncode != 0:
         raise SystemExit(f"PYTHONPATH={src}: importing {', '.join(modules)} failed\n{proc.stderr}")
     seconds, loaded = json.loads(proc.stdout.strip().splitlines()[-1])
