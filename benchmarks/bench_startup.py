@@ -60,8 +60,8 @@ IMPORTS_BASELINE_COMMIT = "76b0222"
 #: Per command, the modules it imports before its first computation, in order (src/drivecal/cli/_COMMAND.py:
 #: the command's module, the imports at the top of its body, then those of the helpers it calls first).
 BEFORE_WORK: dict[str, tuple[str, ...]] = {
-    "batch": ("drivecal.cli._batch", "rich.progress", "drivecal.errors", "drivecal.fleet", "drivecal.selection",
-              "drivecal.data"),
+    "batch": ("drivecal.cli._batch", "rich.progress", "drivecal.errors", "drivecal.fleet", "drivecal.fleet._batch",
+              "drivecal.fleet._runners", "drivecal.selection", "drivecal.data"),
     "demo": ("drivecal.cli._demo", "drivecal.demo"),
     "design": ("drivecal.cli._design", "drivecal.design", "drivecal.identify", "drivecal.model", "drivecal.plan",
                "drivecal.data"),
@@ -77,8 +77,8 @@ BEFORE_WORK: dict[str, tuple[str, ...]] = {
     "report": ("drivecal.cli._report", "drivecal.report", "drivecal.results"),
     "simulate": ("drivecal.cli._simulate", "drivecal.errors", "drivecal.plan", "drivecal.data"),
 }
-#: What the baseline imported before the work besides: `demo` loaded the figure module (matplotlib)
-#: with or without --out.
+#: What the default imports baseline (76b0222) imported before the work besides: `demo` loaded the figure module
+#: (matplotlib) with or without --out. Another baseline (``--imports-baseline-commit``) imports the lists as they are.
 BASELINE_ONLY: dict[str, tuple[str, ...]] = {"demo": ("drivecal._figures",)}
 #: Heavy libraries: which of them a command has loaded when its work starts (a column of the table).
 HEAVY = ("jax", "optimistix", "pandas", "pyarrow", "scipy.special", "matplotlib", "jaxonomy")
@@ -148,14 +148,16 @@ def time_imports(src: Path, modules: tuple[str, ...]) -> tuple[float, list[str]]
     return seconds, loaded
 
 
-def imports_before_work(trees: dict[str, Path], runs: int, status) -> list[dict]:
+def imports_before_work(trees: dict[str, Path], runs: int, status, baseline_only: dict[str, tuple[str, ...]]
+                        ) -> list[dict]:
     """Per command: each tree's import time before work, ``runs`` fresh processes each (after one
-    warm-up), the trees alternating run by run; the medians, their ratio and what each had loaded."""
+    warm-up), the trees alternating run by run; the medians, their ratio and what each had loaded.
+    ``baseline_only``: per command, what the baseline imported besides (:data:`BASELINE_ONLY`, or none)."""
     rows = []
     for command, modules in BEFORE_WORK.items():
         samples: dict[str, list[float]] = {name: [] for name in trees}
         loaded: dict[str, list[str]] = {}
-        lists = {"baseline": modules[:1] + BASELINE_ONLY.get(command, ()) + modules[1:], "now": modules}
+        lists = {"baseline": modules[:1] + baseline_only.get(command, ()) + modules[1:], "now": modules}
         for k in range(runs + 1):
             for name, src in trees.items():
                 status.update(f"imports before work: {command} ({name}, run {k + 1} of {runs + 1})")
@@ -217,7 +219,8 @@ def main() -> None:
             rows.append({"command": label, "baseline_median_s": base, "now_median_s": now,
                          "ratio_baseline_over_now": base / now,
                          "baseline_samples_s": samples["baseline"], "now_samples_s": samples["now"]})
-        import_rows = imports_before_work(import_trees, args.runs, status)
+        baseline_only = BASELINE_ONLY if args.imports_baseline_commit == IMPORTS_BASELINE_COMMIT else {}
+        import_rows = imports_before_work(import_trees, args.runs, status, baseline_only)
 
     table = Table(title=f"CLI startup, fresh processes: median of {args.runs} runs (after one warm-up)",
                   title_justify="left")
