@@ -1,8 +1,7 @@
 """The parameters' vocabulary: their names by role, SI units and meanings, and how a fit searches them.
 
-Plain Python (no JAX): what a page or a table needs to name and label parameters (the fleet report,
-``drivecal --help``) loads this alone. ``drivecal.physics`` re-exports every name; the laws that use
-them live there.
+Plain Python (no JAX): a page or a table that only names and labels parameters (the fleet report)
+loads this alone. ``drivecal.physics`` re-exports every name; the laws that use them live there.
 """
 
 from __future__ import annotations
