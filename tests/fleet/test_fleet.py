@@ -217,5 +217,7 @@ def test_every_name_the_fleet_package_lists_loads_on_first_use():
         if owner is not None and owner.startswith("drivecal.fleet."):
             assert getattr(importlib.import_module(owner), name) is value
     assert sorted(set(fleet.__all__)) == sorted(fleet.__all__)
+    offered = {n for n in dir(fleet) if not n.startswith("_")} - {"annotations", "TYPE_CHECKING"}
+    assert offered == set(fleet.__all__)  # the names it loads on use are the names it lists
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         fleet.nope  # noqa: B018
