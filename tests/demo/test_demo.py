@@ -12,10 +12,15 @@ from drivecal.demo import _demo
 
 def test_compiling_a_design_ahead_compiles_what_its_fit_and_result_document_run():
     """After ``_compile_design`` (the plan alone, no data), the design's fit and its result JSON compile nothing:
-    the same kernels, for the parameters the identifiability check leaves to fit (the locked q-step: R and Lq)."""
+    the same kernels, for the parameters the identifiability check leaves to fit (the locked q-step: R and Lq).
+
+    Also after ``jax.clear_caches()`` (as tests/conftest.py does at a worker's memory-map limit): compiling the
+    design again compiles what the clearing dropped, though this process prepared its score tests before."""
     plan, truth = dc.locked_q_step_plan(), dc.DEFAULT_MOTOR
     guess = _demo.datasheet_guess(truth)
     clean = engine_bench(plan, truth)
+    _demo._compile_design(plan, guess)
+    jax.clear_caches()
     _demo._compile_design(plan, guess)
     compiled, listening = [], [True]
 

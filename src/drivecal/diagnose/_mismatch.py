@@ -31,6 +31,7 @@ from typing import Any, Callable
 
 import jax
 import numpy as np
+from jax._src import util as jax_util  # register_cache: jax.clear_caches() clears _PREPARED
 
 from .._stats import chi2_sf
 from ..model import (Experiment, ahead_of_need, model_experiment, outputs_unused, predicted_currents,
@@ -228,8 +229,28 @@ def untested_effects(fit_names: tuple[str, ...], experiment: Experiment) -> tupl
     return tuple(e for e, (params, _, _) in groups.items() if not set(params) & set(fit_names))
 
 
-#: What :func:`prepare_unmodelled_effects` has compiled in this process.
-_PREPARED: set = set()
+class _Prepared:
+    """The keys of what :func:`prepare_unmodelled_effects` has compiled in this process, forgotten with JAX's own
+    caches: ``jax.clear_caches()`` drops the compiled kernels the keys stand for (with drivecal's on-disk cache
+    off, the plain jitted calls'), and a stale key would skip the preparation and leave them to compile at the
+    fit (a test worker clears JAX's caches at its memory-map limit: tests/conftest.py)."""
+
+    def __init__(self) -> None:
+        self.keys: set = set()
+
+    def cache_clear(self) -> None:
+        self.keys.clear()
+
+    def cache_info(self) -> int:
+        return len(self.keys)
+
+    def cache_keys(self) -> list:
+        return list(self.keys)
+
+
+#: What :func:`prepare_unmodelled_effects` has compiled in this process, cleared by ``jax.clear_caches()``.
+_PREPARED = _Prepared()
+jax_util.register_cache(_PREPARED, "drivecal.diagnose.prepare_unmodelled_effects")
 
 
 def prepare_unmodelled_effects(motor: MotorParams, fit_names: tuple[str, ...], experiment: Experiment,
@@ -247,8 +268,8 @@ def prepare_unmodelled_effects(motor: MotorParams, fit_names: tuple[str, ...], e
     magnetic = bool(set(effects) & set(MAGNETIC_EFFECTS)) and not is_saturating(motor)
     leaves, tree = jax.tree_util.tree_flatten(experiment)
     key = (tuple(fit_names), plain, magnetic, tree, tuple(np.shape(x) for x in leaves))
-    if (plain or magnetic) and key not in _PREPARED:  # once per kernel in a process (a batch's flagged motors share)
-        _PREPARED.add(key)
+    if (plain or magnetic) and key not in _PREPARED.keys:  # once per kernel in a process (flagged motors share)
+        _PREPARED.keys.add(key)
         # as a fit returns it: the fitted parameters as float64 arrays (a Python float would trace as a weak type)
         fitted = parameter_values(motor, tuple(fit_names), np)  # on the host: no JAX operation dispatched
         motor = with_experiment_delay(motor.with_vector(tuple(fit_names), fitted), experiment)
