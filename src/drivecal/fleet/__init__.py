@@ -7,8 +7,9 @@ batch's modules load them (each through the sub-packages it imports, which set u
 
 from __future__ import annotations
 
-import importlib as _importlib
 from typing import TYPE_CHECKING
+
+from .._lazy import lazy_names as _lazy_names
 
 if TYPE_CHECKING:  # the names' origins, for type checkers and the API reference; loaded at run time by __getattr__
     from ._batch import (BatchSummary, STATUS_CALIBRATED, STATUS_INVALID, STATUS_NOT_CONVERGED, STATUS_PARTIAL,
@@ -31,7 +32,6 @@ _MODULES: dict[str, tuple[str, ...]] = {
     "_runners": ("tune_for_batch",),
     "_synthetic": ("predict_currents_and_speed", "synthetic_fleet"),
 }
-_API = {name: module for module, names in _MODULES.items() for name in names}
 
 __all__ = ["BatchSummary", "DEFAULT_OUTLIER_Z", "STATUS_CALIBRATED", "STATUS_INVALID", "STATUS_NOT_CONVERGED",
            "STATUS_PARTIAL", "calibrate_files", "discover", "motors_in", "fleet_checks", "fleet_histograms",
@@ -39,13 +39,4 @@ __all__ = ["BatchSummary", "DEFAULT_OUTLIER_Z", "STATUS_CALIBRATED", "STATUS_INV
            "residual_diagnostics", "run_batch", "spec_checks", "synthetic_fleet", "tune_for_batch", "write_fleet_report"]
 
 
-def __getattr__(name: str):
-    if name not in _API:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(_importlib.import_module(f"{__name__}.{_API[name]}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_API))
+__getattr__, __dir__ = _lazy_names(__name__, _MODULES)
