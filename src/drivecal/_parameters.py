@@ -37,6 +37,17 @@ MECHANICAL: tuple[str, ...] = ("J", "B", "T_coulomb", "T_load")
 ESTIMABLE: tuple[str, ...] = ESTIMATED + NUISANCE + MECHANICAL + MAGNETIC + BRIDGE
 #: Settings of the models, never estimated (the saturation law's exponents are chosen among candidates).
 SETTINGS: tuple[str, ...] = ("T_ref", "w_coulomb") + EXPONENTS + ("i_ref",) + BRIDGE_SHAPE
+#: The default motor's value of every parameter and setting (SI; ``physics.DEFAULT_MOTOR``, the field defaults of
+#: ``physics.MotorParams``): the 48 V interior PMSM of the tutorial bench on an ideal inverter and ideal sensors.
+#: Plain numbers, so that a motor file is read and checked without JAX (``data._motor_spec``).
+DEFAULT_VALUES: dict[str, float] = {
+    "R": 0.45, "Ld": 3.2e-3, "Lq": 5.8e-3, "lambda_m": 0.0533, "pole_pairs": 4.0, "J": 1.2e-3, "B": 8.0e-5,
+    "T_load": 0.0, "T_coulomb": 0.0, "w_coulomb": 1.0, "delay": 0.0, "v_dead": 0.0, "i_dead": 0.01, "offset_d": 0.0,
+    "offset_q": 0.0, "offset_a": 0.0, "offset_b": 0.0, "alpha_R": 3.93e-3, "T_ref": 20.0, "encoder_offset": 0.0,
+    "sat_d": 0.0, "sat_q": 0.0, "sat_dq": 0.0, "exp_d": 2.0, "exp_q": 2.0, "exp_dq_d": 1.0, "exp_dq_q": 1.0,
+    "i_ref": 1.0, "sat_b": 0.0, "exp_b": 2.0, "sat_bp": 0.0, "k_q": 0.0, "psi_n": 0.0, "sat_at_zero": 0.0
+}
+
 #: Parameters that may be zero or negative: searched additively around the
 #: prior in steps of this size (their unit), not as ``ln(theta/prior)``.
 ADDITIVE_SCALE: dict[str, float] = {

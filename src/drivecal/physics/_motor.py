@@ -26,7 +26,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._parameters import ADDITIVE_SCALE, ESTIMATED, FIXED, UNITS
+from .._parameters import ADDITIVE_SCALE, DEFAULT_VALUES, ESTIMATED, FIXED, UNITS
 
 
 class MotorParams(eqx.Module):
@@ -89,40 +89,40 @@ class MotorParams(eqx.Module):
     an ideal inverter and ideal sensors.
     """
 
-    R: Any = 0.45
-    Ld: Any = 3.2e-3
-    Lq: Any = 5.8e-3
-    lambda_m: Any = 0.0533
-    pole_pairs: Any = 4.0
-    J: Any = 1.2e-3
-    B: Any = 8.0e-5
-    T_load: Any = 0.0
-    T_coulomb: Any = 0.0
-    w_coulomb: Any = 1.0
-    delay: Any = 0.0
-    v_dead: Any = 0.0
-    i_dead: Any = 0.01
-    offset_d: Any = 0.0
-    offset_q: Any = 0.0
-    offset_a: Any = 0.0
-    offset_b: Any = 0.0
-    alpha_R: Any = 3.93e-3
-    T_ref: Any = 20.0
-    encoder_offset: Any = 0.0
-    sat_d: Any = 0.0
-    sat_q: Any = 0.0
-    sat_dq: Any = 0.0
-    exp_d: Any = 2.0
-    exp_q: Any = 2.0
-    exp_dq_d: Any = 1.0
-    exp_dq_q: Any = 1.0
-    i_ref: Any = 1.0
-    sat_b: Any = 0.0
-    exp_b: Any = 2.0
-    sat_bp: Any = 0.0
-    k_q: Any = 0.0
-    psi_n: Any = 0.0
-    sat_at_zero: Any = 0.0
+    R: Any = DEFAULT_VALUES["R"]
+    Ld: Any = DEFAULT_VALUES["Ld"]
+    Lq: Any = DEFAULT_VALUES["Lq"]
+    lambda_m: Any = DEFAULT_VALUES["lambda_m"]
+    pole_pairs: Any = DEFAULT_VALUES["pole_pairs"]
+    J: Any = DEFAULT_VALUES["J"]
+    B: Any = DEFAULT_VALUES["B"]
+    T_load: Any = DEFAULT_VALUES["T_load"]
+    T_coulomb: Any = DEFAULT_VALUES["T_coulomb"]
+    w_coulomb: Any = DEFAULT_VALUES["w_coulomb"]
+    delay: Any = DEFAULT_VALUES["delay"]
+    v_dead: Any = DEFAULT_VALUES["v_dead"]
+    i_dead: Any = DEFAULT_VALUES["i_dead"]
+    offset_d: Any = DEFAULT_VALUES["offset_d"]
+    offset_q: Any = DEFAULT_VALUES["offset_q"]
+    offset_a: Any = DEFAULT_VALUES["offset_a"]
+    offset_b: Any = DEFAULT_VALUES["offset_b"]
+    alpha_R: Any = DEFAULT_VALUES["alpha_R"]
+    T_ref: Any = DEFAULT_VALUES["T_ref"]
+    encoder_offset: Any = DEFAULT_VALUES["encoder_offset"]
+    sat_d: Any = DEFAULT_VALUES["sat_d"]
+    sat_q: Any = DEFAULT_VALUES["sat_q"]
+    sat_dq: Any = DEFAULT_VALUES["sat_dq"]
+    exp_d: Any = DEFAULT_VALUES["exp_d"]
+    exp_q: Any = DEFAULT_VALUES["exp_q"]
+    exp_dq_d: Any = DEFAULT_VALUES["exp_dq_d"]
+    exp_dq_q: Any = DEFAULT_VALUES["exp_dq_q"]
+    i_ref: Any = DEFAULT_VALUES["i_ref"]
+    sat_b: Any = DEFAULT_VALUES["sat_b"]
+    exp_b: Any = DEFAULT_VALUES["exp_b"]
+    sat_bp: Any = DEFAULT_VALUES["sat_bp"]
+    k_q: Any = DEFAULT_VALUES["k_q"]
+    psi_n: Any = DEFAULT_VALUES["psi_n"]
+    sat_at_zero: Any = DEFAULT_VALUES["sat_at_zero"]
 
     def replace(self, **changes: Any) -> MotorParams:
         """A copy with the named fields changed, e.g. ``motor.replace(R=0.5)``."""
