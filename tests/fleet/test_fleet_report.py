@@ -175,21 +175,24 @@ _REPORT_PROGRAM = """
 import sys
 from drivecal.cli import main
 
-assert main(["fleet-report", sys.argv[1], "--html", sys.argv[2]]) == 0
+assert main(["fleet-report", sys.argv[1], "--html", sys.argv[2], *sys.argv[3:]]) == 0
 print(sorted(m for m in ("jax", "jaxlib", "equinox", "drivecal.physics", "drivecal.model", "drivecal.fitting")
              if m in sys.modules))
 """
 
 
-def test_the_fleet_report_loads_nothing_of_jax_or_the_fitting_stack(table, tmp_path):
-    """The page is pandas and matplotlib: JAX and the model (~0.6 s of imports) are not loaded for it."""
+@pytest.mark.parametrize("motor", [(), ("--motor", "examples/motor_spec.toml")], ids=["alone", "motor file"])
+def test_the_fleet_report_loads_nothing_of_jax_or_the_fitting_stack(table, tmp_path, motor):
+    """The page is pandas and matplotlib: JAX and the model (~0.6 s of imports) are not loaded for it, nor for
+    a plain motor file's nominal values and limits (``--motor``)."""
     import subprocess
     import sys
 
     results, out = tmp_path / "results.parquet", tmp_path / "fleet.html"
     table.to_parquet(results, index=False)
-    proc = subprocess.run([sys.executable, "-c", _REPORT_PROGRAM, str(results), str(out)], capture_output=True,
-                          text=True, timeout=300)
+    motor = tuple(str(Path(__file__).resolve().parents[2] / m) if m.endswith(".toml") else m for m in motor)
+    proc = subprocess.run([sys.executable, "-c", _REPORT_PROGRAM, str(results), str(out), *motor],
+                          capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.splitlines()[-1] == "[]"
     assert "fleet-data" in out.read_text(encoding="utf-8")

@@ -47,18 +47,18 @@ def fleet_report(results, html_out, motor_path, trend_by):
 
 
 def _nominal_and_limits(motor_path):
-    """The nominal values (the keys the motor file gives) and the tolerance limits of ``--motor``, SI."""
+    """The nominal values (the keys the motor file gives) and the tolerance limits of ``--motor``, SI; read
+    without JAX (``data.motor_nominal``) unless the file states its magnetic law as published."""
     if motor_path is None:
         return None, None
-    from ..data import load_motor
-    from ..physics import ESTIMATED
+    from .._parameters import ESTIMATED
+    from ..data import motor_nominal
 
-    motor_file = load_motor(motor_path)
-    missing = [n for n in ESTIMATED if n in motor_file.defaulted]
+    motor = motor_nominal(motor_path)
+    missing = [n for n in ESTIMATED if n in motor.defaulted]
     if missing:
         _warn(f"--motor {motor_path}: {', '.join(missing)} not in the file; no nominal line for "
               f"{'them' if len(missing) > 1 else 'it'}.")
-    tolerances = {n: (t.low, t.high) for n, t in getattr(motor_file, "tolerance", {}).items()}
-    nominal = {n: float(getattr(motor_file.motor, n)) for n in (*ESTIMATED, *tolerances)
-               if n not in motor_file.defaulted and hasattr(motor_file.motor, n)}
+    tolerances = {n: (t.low, t.high) for n, t in motor.tolerance.items()}
+    nominal = {n: motor.values[n] for n in (*ESTIMATED, *tolerances) if n not in motor.defaulted and n in motor.values}
     return nominal, tolerances

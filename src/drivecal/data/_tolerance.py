@@ -22,7 +22,7 @@ import re
 from typing import Any, NamedTuple
 
 from ..errors import DrivecalError
-from ..physics import ESTIMABLE, UNITS
+from .._parameters import ESTIMABLE, UNITS
 from .._units import parse_quantity
 
 #: The quantity (units table of ``_units``) of each parameter a tolerance may name; None: a plain number.
