@@ -100,3 +100,29 @@ def test_a_zero_crossing_inside_a_segment_is_no_rest():
     proposals = propose_windows(t, v, None, None)
     assert [(p.first, p.last) for p in proposals] == [(50, 149), (250, 349)]
     assert all(p.window.locked is None for p in proposals)  # no speed channel to tell
+
+
+# `drivecal inspect` as a fresh process runs it, then what the process had loaded.
+_INSPECT_PROGRAM = """
+import sys
+from drivecal.cli import main
+
+assert main(["inspect", sys.argv[1], "--out", sys.argv[2]]) == 0
+print(sorted(m for m in ("jax", "jaxlib", "equinox", "drivecal.physics", "drivecal.model") if m in sys.modules))
+"""
+
+
+@pytest.mark.parametrize("kind", ["mf4", "tdms"])
+def test_inspect_loads_nothing_of_jax(kind, logs, tmp_path):
+    """Listing a log's channels and proposing its format file needs no motor model: JAX (~0.6 s of imports) and
+    drivecal's model are not loaded for it."""
+    import subprocess
+    import sys
+
+    paths, _, _ = logs
+    out = tmp_path / "format.toml"
+    proc = subprocess.run([sys.executable, "-c", _INSPECT_PROGRAM, str(paths[kind]), str(out)], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines()[-1] == "[]"
+    assert load_format(out).columns  # the proposal was written, and reads

@@ -24,12 +24,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .._stats import noise_level
-from ..physics import MECHANICAL, MotorParams
+from .._parameters import MECHANICAL
+
+if TYPE_CHECKING:  # a type only: reading a log's speed needs no motor model (JAX)
+    from ..physics import MotorParams
 
 #: Relative tolerance (of the largest |value|) within which values count as lying on a lattice: float32
 #: storage (6e-8) and unit conversions (rpm to rad/s: 1e-16) are well within, chance is far outside.
