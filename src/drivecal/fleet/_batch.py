@@ -47,7 +47,7 @@ from ..data import MotorFile
 from ..results import Spec, Status, content_sha256, result_message
 from ._checks import FLEET_COLUMNS, fleet_checks, residual_diagnostics, spec_checks
 from ._report_stats import DEFAULT_OUTLIER_Z
-from ._inputs import discover, motors_in, prefetch as _prefetch, serial_of
+from ._inputs import discover_paths, motors_in, prefetch as _prefetch, serial_of
 from ._cluster import stopped
 from ._runners import run_chunks, tune_if_dask_worker
 
@@ -433,7 +433,7 @@ def run_batch(
             f"{out.name} (and {parts.name}/) to start again."
         )
     fmt = load_format(format)  # refused before anything is written
-    files = [str(p) for p in discover(inputs)]
+    files = discover_paths(inputs)
     done = _read_done(out) if resume else pd.DataFrame()
     _check_same_run(done, out, motor_file)
     done_files = set(done["file"]) if len(done) else set()

@@ -30,39 +30,52 @@ def discover(inputs: Sequence[str | os.PathLike]) -> list[Path]:
     Raises:
         DrivecalError: an input that matches nothing.
     """
-    found: set[Path] = set()
+    return [Path(p) for p in discover_paths(inputs)]
+
+
+def discover_paths(inputs: Sequence[str | os.PathLike]) -> list[str]:
+    """:func:`discover`'s files as strings, in its order (a batch's files are strings from here on).
+
+    Strings throughout, not ``Path`` objects: building, hashing and comparing 10 000 of them took ~0.1 s of
+    a batch's start, before any helper had work.
+    """
+    found: set[str] = set()
     for item in inputs:
         path = Path(item)
         if path.is_dir():
             matches = _bench_files_under(path)  # resolved already
         elif path.is_file():
-            matches = [path.resolve()]
+            matches = [str(path.resolve())]
         else:
-            matches = [Path(p).resolve() for p in glob.glob(str(item), recursive=True) if Path(p).is_file()]
+            matches = [str(Path(p).resolve()) for p in glob.glob(str(item), recursive=True) if Path(p).is_file()]
         if not matches:
             raise DrivecalError(f"{item}: no bench files ({', '.join(FORMATS)}) found there; "
                                 "check the path or pattern.")
         found.update(matches)
-    return sorted(found)
+    return sorted(found, key=_path_order)
 
 
-def _bench_files_under(directory: Path) -> list[Path]:
+def _path_order(path: str) -> list[str]:
+    """The sort key of a resolved path as ``Path`` orders it: component by component (``a/b`` before ``a-b``,
+    which a plain string sort puts first), and without case where the system ignores it (Windows)."""
+    return os.path.normcase(path).split(os.sep)
+
+
+def _bench_files_under(directory: Path) -> list[str]:
     """Bench files anywhere below ``directory`` (not into linked directories), resolved.
 
     One ``scandir`` per directory: a production line's folder holds tens of thousands of files,
     and resolving each path on its own costs ~30 us.
     """
-    found, pending = [], [directory.resolve()]
+    found, pending = [], [str(directory.resolve())]
     while pending:
         with os.scandir(pending.pop()) as entries:
             for entry in entries:
                 if entry.is_dir(follow_symlinks=False):
-                    pending.append(Path(entry.path))
+                    pending.append(entry.path)
                 elif os.path.splitext(entry.name)[1].lower() in FORMATS and entry.is_file():
-                    found.append(Path(entry.path).resolve() if entry.is_symlink() else Path(entry.path))
+                    found.append(str(Path(entry.path).resolve()) if entry.is_symlink() else entry.path)
     return found
-
-
 
 
 def prefetch(paths: Sequence[str]) -> None:
