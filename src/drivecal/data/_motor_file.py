@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from ..errors import DrivecalError
 from ..physics import (BRIDGE, BRIDGE_SHAPE, DEFAULT_MOTOR, ESTIMABLE, ESTIMATED, EXPONENTS, MAGNETIC, MotorParams,
                        from_hinkkanen, from_lelli)
-from ._motor_spec import HinkkanenSpec, LelliSpec, check_estimate_lambda_m, read_motor_table
+from ._motor_spec import HinkkanenSpec, LelliSpec, MotorTable, check_estimate_lambda_m, read_motor_table
 from ._tolerance import Tolerance, tolerances_of
 from .._units import read_toml
 
@@ -73,7 +73,11 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
     Missing keys take the default motor's values; those of :data:`REQUIRED_KEYS` are listed in
     ``defaulted``. An empty table is refused: it would silently be the demo motor.
     """
-    table = read_motor_table(data, source)
+    return motor_file_of(read_motor_table(data, source), source)
+
+
+def motor_file_of(table: MotorTable, source: str) -> MotorFile:
+    """The :class:`MotorFile` of a checked motor table (:func:`read_motor_table`): the motor built, its law applied."""
     spec = table.spec
     motor = MotorParams(**table.values, delay=float(spec.delay_samples))
     if spec.hinkkanen is not None or spec.lelli is not None:

@@ -34,12 +34,11 @@ class MotorNominal(NamedTuple):
 def motor_nominal(path: str | Path) -> MotorNominal:
     """The nominal values, tolerance limits and defaulted keys of the motor file at ``path``, as ``load_motor``
     gives them; without JAX unless the file states its law as published (``[hinkkanen]``, ``[lelli]``)."""
-    data = read_toml(path)
-    table = read_motor_table(data, str(path))
+    table = read_motor_table(read_toml(path), str(path))
     if table.spec.hinkkanen is not None or table.spec.lelli is not None:
-        from ._motor_file import motor_from_dict
+        from ._motor_file import motor_file_of
 
-        motor_file = motor_from_dict(data, str(path))
+        motor_file = motor_file_of(table, str(path))
         return MotorNominal(motor_file.motor.all_values(), motor_file.tolerance, motor_file.defaulted)
     values = {**table.values, "delay": float(table.spec.delay_samples)}
     tolerance = {} if table.tolerance_table is None else tolerances_of(table.tolerance_table, values, str(path))
