@@ -81,3 +81,19 @@ def test_a_loop_over_more_than_xlas_default_bytes_is_compiled_as_one_kernel():
         return jax.lax.scan(lambda c, u: (jnp.sin(c) * 0.9 + u, c[0]), jnp.zeros(10_000), x)[1]
 
     assert "xla_cpu_small_call" in jax.jit(sweep).lower(jnp.ones(50)).compile().as_text()
+
+
+def test_jax_sees_the_same_jax_packages_without_parsing_every_packages_metadata():
+    """JAX's ROCm-plugin search on import reads each installed package's name; drivecal hands it only the
+    ``jax*`` packages, named from their folders: the same packages as from their parsed metadata."""
+    import importlib.metadata
+    import re
+
+    def named(dists):  # PEP 503 names
+        return sorted(re.sub(r"[-_.]+", "-", d.metadata["Name"]).lower() for d in dists)
+
+    everything = named(importlib.metadata.distributions())
+    expected = [n for n in everything if n.startswith("jax")]
+    assert expected and len(expected) < len(everything)  # jax, jaxlib, ... and other packages
+    assert named(_setup._jax_distributions()) == expected
+    assert importlib.metadata.distributions is _setup._all_distributions  # put back once JAX imported

@@ -8,6 +8,7 @@ switches JAX to double precision for the whole process.
 
 from __future__ import annotations
 
+import importlib.metadata
 import os
 import threading
 from pathlib import Path
@@ -47,7 +48,28 @@ if cache_enabled():
 # before, their numbers the same to rounding.
 os.environ["XLA_FLAGS"] = with_small_loops(os.environ.get("XLA_FLAGS", ""))
 
-import jax  # noqa: E402
+
+
+def _jax_distributions(**kwargs: Any):
+    """``importlib.metadata.distributions``, only the installed packages whose name starts with "jax".
+
+    JAX 0.9.2 looks for a ROCm plugin (a package named ``jax-rocm*-plugin``) on import by parsing the
+    metadata of every installed package: 0.1-0.3 s of every command that runs JAX, in a venv of ~160
+    packages. A package's name is read here from its folder's name (``jax_rocm7_plugin-0.9.2.dist-info``),
+    its metadata only where the folder does not tell; JAX sees the same ``jax*`` packages.
+    """
+    for dist in _all_distributions(**kwargs):
+        name = getattr(dist, "_normalized_name", None) or (dist.metadata.get("Name") or "").lower()
+        if name.startswith("jax"):
+            yield dist
+
+
+_all_distributions = importlib.metadata.distributions
+importlib.metadata.distributions = _jax_distributions  # only while JAX imports (if not imported yet)
+try:
+    import jax  # noqa: E402
+finally:
+    importlib.metadata.distributions = _all_distributions
 
 jax.config.update("jax_enable_x64", True)
 
