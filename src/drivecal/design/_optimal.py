@@ -43,7 +43,6 @@ import dataclasses
 import math
 from typing import Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -110,7 +109,7 @@ def _objective_fn(par: _Param, motor: MotorParams, names: tuple[str, ...]):
     kr = 1.5 * float(motor.pole_pairs) * (float(motor.Ld) - float(motor.Lq))  # per i_d * i_q (N*m/A^2)
 
     def experiment(volts):
-        return eqx.tree_at(lambda e: e.voltages, template, volts.reshape(s_count * grid, 2))
+        return dataclasses.replace(template, voltages=volts.reshape(s_count * grid, 2))
 
     def peaks(states, log_window):
         magnitude = jnp.sqrt(states[:, 0] ** 2 + states[:, 1] ** 2 + 1e-12).reshape(s_count, grid)

@@ -14,11 +14,11 @@ from __future__ import annotations
 import dataclasses
 import functools
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._pytree import pytree_dataclass
 from ..model import LEGACY_EMITTERS, cached_call, join_current_parts, run_once_options
 from ..physics import from_search, to_search
 from ..results import solver_code
@@ -26,7 +26,8 @@ from ._initial import start_from_data
 from ._options import FitOptions
 
 
-class _Solved(eqx.Module):
+@pytree_dataclass
+class _Solved:
     """Raw per-fit arrays out of the compiled solve (leading batch axis)."""
 
     theta: jnp.ndarray  # (n,) fitted parameters, their units

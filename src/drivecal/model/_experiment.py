@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import dataclasses
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from .._pytree import pytree_dataclass, static_field
 from ..physics import MAGNETIC, MotorParams, delayed, rotor_frame
 from ..plan import Plan
 
@@ -26,7 +26,8 @@ from ..plan import Plan
 SEGMENT_KINDS: tuple[str, ...] = ("locked", "measured", "free", "coast")
 
 
-class Experiment(eqx.Module):
+@pytree_dataclass
+class Experiment:
     """What was applied on the bench, on the sample grid (a pytree of arrays).
 
     Attributes:
@@ -115,21 +116,21 @@ class Experiment(eqx.Module):
     temperature: jnp.ndarray
     theta_e: jnp.ndarray
     theta_e_start: jnp.ndarray
-    dead_time: bool = eqx.field(static=True, default=False)
-    phase_offsets: bool = eqx.field(static=True, default=False)
-    encoder_offset: bool = eqx.field(static=True, default=False)
-    thermal: bool = eqx.field(static=True, default=False)
-    dead_time_substeps: int = eqx.field(static=True, default=4)
-    segments: tuple[tuple[int, int, str], ...] | None = eqx.field(static=True, default=None)
-    carried: tuple[int, ...] = eqx.field(static=True, default=())
-    speed_outputs: tuple[int, ...] = eqx.field(static=True, default=())
+    dead_time: bool = static_field(default=False)
+    phase_offsets: bool = static_field(default=False)
+    encoder_offset: bool = static_field(default=False)
+    thermal: bool = static_field(default=False)
+    dead_time_substeps: int = static_field(default=4)
+    segments: tuple[tuple[int, int, str], ...] | None = static_field(default=None)
+    carried: tuple[int, ...] = static_field(default=())
+    speed_outputs: tuple[int, ...] = static_field(default=())
     speed_weight: jnp.ndarray = 1.0
-    base_delay: int = eqx.field(static=True, default=0)
-    fractional_delay: bool = eqx.field(static=True, default=False)
-    linearised_tangents: bool = eqx.field(static=True, default=True)
-    saturating: bool = eqx.field(static=True, default=False)
-    bridge: bool = eqx.field(static=True, default=False)
-    rolled: bool = eqx.field(static=True, default=False)
+    base_delay: int = static_field(default=0)
+    fractional_delay: bool = static_field(default=False)
+    linearised_tangents: bool = static_field(default=True)
+    saturating: bool = static_field(default=False)
+    bridge: bool = static_field(default=False)
+    rolled: bool = static_field(default=False)
 
     @property
     def num_samples(self) -> int:

@@ -392,8 +392,8 @@ def _export(fn: Callable, name: str, leaves: list, treedef: Any, static: dict[st
         _traced()
         # The VJP hook is a closure (not needed: these calls are never differentiated).
         exported = dataclasses.replace(exported, _get_vjp=None)
-        # Only trees of tuples, lists, dicts and None come back intact (an equinox
-        # Module's tree does not): anything else is not kept.
+        # Only an output structure that comes back intact from pickling is kept (tuples,
+        # lists, dicts, None, drivecal's module-level dataclasses): anything else is not.
         if pickle.loads(pickle.dumps(out_tree[0])) != out_tree[0]:
             raise TypeError(f"the output structure {out_tree[0]} does not survive pickling")
         run, kept = _compiled(exported, leaves, options)

@@ -22,14 +22,15 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, NamedTuple
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
 from .._parameters import ADDITIVE_SCALE, DEFAULT_VALUES, ESTIMATED, FIXED, UNITS
+from .._pytree import pytree_dataclass
 
 
-class MotorParams(eqx.Module):
+@pytree_dataclass
+class MotorParams:
     """Electrical and mechanical parameters of a PMSM, SI units.
 
     A frozen pytree: every field is a leaf, so a batch of motors is the same
