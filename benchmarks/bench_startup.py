@@ -85,7 +85,7 @@ BASELINE_ONLY: dict[str, tuple[str, ...]] = {"demo": ("drivecal._figures",)}
 #: the motor's loader, ``physics`` and JAX.
 NOW_ONLY: dict[str, tuple[str, ...]] = {"fleet-report --motor": ("drivecal.data._nominal",)}
 #: Heavy libraries: which of them a command has loaded when its work starts (a column of the table).
-HEAVY = ("jax", "optimistix", "pandas", "pyarrow", "scipy.special", "matplotlib", "jaxonomy")
+HEAVY = ("jax", "equinox", "optimistix", "pydantic", "pandas", "pyarrow", "scipy.special", "matplotlib", "jaxonomy")
 IMPORT_TIMER = ("import gc, importlib, json, sys, time\n"
                 "gc.set_threshold(int(sys.argv.pop(1)), *gc.get_threshold()[1:])\n"
                 "t0 = time.perf_counter()\n"

@@ -20,7 +20,7 @@ TESTS = Path(__file__).resolve().parent
 #: The layers, lowest first: a module may import its own layer and those below it.
 LAYERS: tuple[frozenset[str], ...] = tuple(frozenset(x) for x in (
     {"errors", "_version", "_setup", "_stats", "_io", "_units", "_status", "_figure_kinds", "_figures", "_page",
-     "_parameters", "_lazy", "_pytree"},
+     "_parameters", "_lazy", "_pytree", "_schema"},
     {"physics"},
     {"plan"},
     {"model"},
@@ -248,13 +248,14 @@ def _loaded_after(code: str, heavy: tuple[str, ...]) -> str:
 
 
 def test_sub_packages_load_heavy_libraries_only_where_used():
-    """Importing the sub-packages (what a command does before its work) loads no optimistix (a solve being traced
-    and plan optimisation load it), no pandas or pyarrow (reading and writing tables) and no scipy.special (the
-    first interval or test): `drivecal report`, `gains`, `design` and `plan` then never load them."""
+    """Importing the sub-packages (what a command does before its work) loads no optimistix or equinox (a solve being
+    traced and plan optimisation load them), no pydantic (reading a plan, motor or format file), no pandas or pyarrow
+    (reading and writing tables) and no scipy.special (the first interval or test): `drivecal report`, `gains`,
+    `design` and `plan` then never load what their work does not need."""
     code = ("import drivecal.cli._design, drivecal.cli._gains, drivecal.cli._plan, drivecal.cli._report\n"
             "import drivecal.data, drivecal.design, drivecal.diagnose, drivecal.fitting, drivecal.identify\n"
             "import drivecal.report, drivecal.results, drivecal.selection\n")
-    loaded = _loaded_after(code, ("optimistix", "lineax", "pandas", "pyarrow", "scipy.special"))
+    loaded = _loaded_after(code, ("optimistix", "lineax", "equinox", "pydantic", "pandas", "pyarrow", "scipy.special"))
     assert loaded == "[]", f"importing the sub-packages loaded {loaded}"
 
 

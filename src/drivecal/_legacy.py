@@ -17,7 +17,7 @@ import warnings
 #: old module -> the modules that hold its names now, searched in order.
 MOVED: dict[str, tuple[str, ...]] = {
     "autoplan": ("design._autoplan",),
-    "config": ("plan._files", "data._motor_file", "data._motor_spec", "_units"),
+    "config": ("plan._files", "plan._plan", "data._motor_file", "data._motor_spec", "_units", "_schema"),
     "distributions": ("_stats",),
     "export": ("bench._blocks",),
     "fit": ("fitting._fit", "fitting._options", "fitting._solver", "results._calibration", "fitting._lm"),

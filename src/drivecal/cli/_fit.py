@@ -138,10 +138,9 @@ def fit_command(bench_path, motor_path, measured_speed, speed_mode, noise, estim
     chosen = parse_effects(effects)
     motor_file = _load_motor(motor_path)
     if estimate is not None:
-        motor_file = motor_file.model_copy(update={"estimate": _estimate_names(estimate)})
+        motor_file = motor_file.replace(estimate=_estimate_names(estimate))
     if delay_samples is not None:
-        motor_file = motor_file.model_copy(update={"delay_samples": delay_samples,
-                                                   "motor": motor_file.motor.replace(delay=delay_samples)})
+        motor_file = motor_file.replace(delay_samples=delay_samples, motor=motor_file.motor.replace(delay=delay_samples))
     names = motor_file.names
     if delay_samples is not None:  # a delay given on the command line is fixed, not searched
         names = tuple(n for n in names if n != "delay")

@@ -101,7 +101,7 @@ def plan_command(motor_path, vdc, imax, max_speed, max_torque, budget, sample_ra
     names = _estimate_names(estimate) if estimate is not None else None
     motor_file = _load_motor(motor_path)
     if names is not None:
-        motor_file = motor_file.model_copy(update={"estimate": names})
+        motor_file = motor_file.replace(estimate=names)
     dead = DEFAULT_DEAD_TIME if dead_time is None else dead_time
     report = auto_design(motor_file.motor, v_dc=vdc, current_limit=imax, max_speed=max_speed,
                          budget=budget, sample_rate=sample_rate, noise_sigma=noise, names=motor_file.names,

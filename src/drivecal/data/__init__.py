@@ -19,9 +19,9 @@ from .._lazy import lazy_names as _lazy_names
 if TYPE_CHECKING:  # the names' origins, for type checkers and the API reference; loaded at run time by __getattr__
     from ._bench_data import BenchData, SegmentData, stacked_experiment
     from ._checks import AT_REST_NOISE_SAMPLES, DQ_COLUMNS, bench_from_frame, benches_from_frames, load_bench
-    from ._format_file import MAPPABLE, BenchFormat, Window, format_from_dict, load_format
+    from ._format_file import BenchFormat, Window, format_from_dict, load_format
     from ._inspect import ChannelInfo, Inspection, guess_columns, inspect_log
-    from ._log_units import COLUMN_QUANTITY, LOG_UNITS, SI_UNIT, canonical_unit
+    from ._log_units import COLUMN_QUANTITY, LOG_UNITS, MAPPABLE, SI_UNIT, canonical_unit
     from ._logs import LOG_FORMATS, LogChannel, is_log, read_log
     from ._mapping import check_mapped, log_channels, read_columns
     from ._motor_file import MotorFile, load_motor, motor_from_dict
@@ -37,9 +37,9 @@ if TYPE_CHECKING:  # the names' origins, for type checkers and the API reference
 _MODULES: dict[str, tuple[str, ...]] = {
     "_bench_data": ("BenchData", "SegmentData", "stacked_experiment"),
     "_checks": ("AT_REST_NOISE_SAMPLES", "DQ_COLUMNS", "bench_from_frame", "benches_from_frames", "load_bench"),
-    "_format_file": ("MAPPABLE", "BenchFormat", "Window", "format_from_dict", "load_format"),
+    "_format_file": ("BenchFormat", "Window", "format_from_dict", "load_format"),
     "_inspect": ("ChannelInfo", "Inspection", "guess_columns", "inspect_log"),
-    "_log_units": ("COLUMN_QUANTITY", "LOG_UNITS", "SI_UNIT", "canonical_unit"),
+    "_log_units": ("COLUMN_QUANTITY", "LOG_UNITS", "MAPPABLE", "SI_UNIT", "canonical_unit"),
     "_logs": ("LOG_FORMATS", "LogChannel", "is_log", "read_log"),
     "_mapping": ("check_mapped", "log_channels", "read_columns"),
     "_motor_file": ("MotorFile", "load_motor", "motor_from_dict"),

@@ -29,42 +29,10 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Literal
-
-from pydantic import ValidationError, create_model
 
 from ..errors import DataError
-from .._units import StrictModel, explain, quantity, read_toml
-from ._log_units import COLUMN_QUANTITY, check_unit
-
-#: The drivecal columns a format file maps: the measured and applied quantities, and the text columns.
-MAPPABLE = ("segment", "serial", *COLUMN_QUANTITY)
-
-_Columns = create_model("_Columns", __base__=StrictModel, **{c: (str | None, None) for c in MAPPABLE})
-_Units = create_model("_Units", __base__=StrictModel, **{c: (str | None, None) for c in COLUMN_QUANTITY})
-
-
-class _Window(StrictModel):
-    name: str
-    start: quantity("time")
-    stop: quantity("time")
-    locked: bool | None = None
-
-
-class _Csv(StrictModel):
-    delimiter: Literal[",", ";", "\t", "|", " "] | None = None
-    decimal: Literal[".", ","] | None = None
-
-
-class _FormatSpec(StrictModel):
-    columns: _Columns
-    units: _Units = _Units()
-    segment: list[_Window] = []
-    csv: _Csv = _Csv()
-
-
-_KEYS = ("[columns] " + ", ".join(MAPPABLE) + "; [units] the same numeric names; [[segment]] name, start, stop, "
-         "locked; [csv] delimiter, decimal")
+from .._units import read_toml
+from ._log_units import check_unit
 
 
 @dataclasses.dataclass(frozen=True)
@@ -111,13 +79,9 @@ def load_format(path: str | Path | BenchFormat | None) -> BenchFormat | None:
 
 def format_from_dict(raw: dict, source: str = "format") -> BenchFormat:
     """A format file's table (as TOML gives it) checked into a :class:`BenchFormat`."""
-    if "columns" not in raw:
-        raise DataError(f"{source}: the format file has no [columns] table; map drivecal's columns to the log's "
-                        "channels there (i_d = \"Id\", ...).")
-    try:
-        spec = _FormatSpec.model_validate(raw)
-    except ValidationError as exc:
-        raise DataError(str(explain(exc, source, "format", _KEYS))) from None
+    from ._format_spec import format_spec  # pydantic's schema: only where a format file is read
+
+    spec = format_spec(raw, source)
     columns = {k: v for k, v in spec.columns.model_dump().items() if v is not None}
     units = {k: check_unit(k, v, f"{source}: [units]") for k, v in spec.units.model_dump().items() if v is not None}
     windows = tuple(Window(w.name.strip(), w.start, w.stop, w.locked) for w in spec.segment)

@@ -38,6 +38,8 @@ COLUMN_QUANTITY: dict[str, str] = {
 }
 SI_UNIT = {"time": "s", "voltage": "V", "current": "A", "speed": "rad/s", "angle": "rad", "temperature": "degC",
            "flag": "1"}
+#: The drivecal columns a format file maps: the measured and applied quantities, and the text columns.
+MAPPABLE = ("segment", "serial", *COLUMN_QUANTITY)
 
 
 def canonical_unit(unit: str) -> str | None:

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
-from ._format_file import MAPPABLE, BenchFormat
-from ._log_units import COLUMN_QUANTITY, SI_UNIT, canonical_unit, same_unit, to_si
+from ._format_file import BenchFormat
+from ._log_units import COLUMN_QUANTITY, MAPPABLE, SI_UNIT, canonical_unit, same_unit, to_si
 from ._logs import LogChannel, is_log, read_log
 from ._readers import Columns, read_table
 from ._values import check_numbers, time_in_seconds

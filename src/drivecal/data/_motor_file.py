@@ -13,19 +13,22 @@ Hinkkanen et al.'s SI coefficients (``examples/syrm_motor.toml``), or a ``[lelli
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
-
-from pydantic import BaseModel, ConfigDict, Field
+from typing import TYPE_CHECKING
 
 from ..errors import DrivecalError
 from ..physics import (BRIDGE, BRIDGE_SHAPE, DEFAULT_MOTOR, ESTIMABLE, ESTIMATED, EXPONENTS, MAGNETIC, MotorParams,
                        from_hinkkanen, from_lelli)
-from ._motor_spec import HinkkanenSpec, LelliSpec, MotorTable, check_estimate_lambda_m, read_motor_table
 from ._tolerance import Tolerance, tolerances_of
 from .._units import read_toml
 
+if TYPE_CHECKING:  # the file's schema (pydantic) is imported where a file is read: the default motor needs none
+    from ._motor_spec import HinkkanenSpec, MotorTable
 
-class MotorFile(BaseModel):
+
+@dataclasses.dataclass(frozen=True)
+class MotorFile:
     """A loaded motor file: the nominal motor (the fit's prior) and what to estimate.
 
     Attributes:
@@ -48,7 +51,6 @@ class MotorFile(BaseModel):
             coarse for an input can then be a second output, the speed simulated from them.
     """
 
-    model_config = ConfigDict(frozen=True, arbitrary_types_allowed=True)
     motor: MotorParams
     estimate: tuple[str, ...] | None = None
     delay_samples: float = 0.0
@@ -56,8 +58,12 @@ class MotorFile(BaseModel):
     speed_noise: float | None = None
     source: str = "default motor"
     defaulted: tuple[str, ...] = ()
-    tolerance: dict[str, Tolerance] = Field(default_factory=dict)
+    tolerance: dict[str, Tolerance] = dataclasses.field(default_factory=dict)
     mechanics_given: bool = True
+
+    def replace(self, **changes: object) -> MotorFile:
+        """A copy with the named fields changed, e.g. ``motor_file.replace(estimate=("R", "Ld"))``."""
+        return dataclasses.replace(self, **changes)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -73,11 +79,15 @@ def motor_from_dict(data: dict, source: str = "motor") -> MotorFile:
     Missing keys take the default motor's values; those of :data:`REQUIRED_KEYS` are listed in
     ``defaulted``. An empty table is refused: it would silently be the demo motor.
     """
+    from ._motor_spec import read_motor_table
+
     return motor_file_of(read_motor_table(data, source), source)
 
 
 def motor_file_of(table: MotorTable, source: str) -> MotorFile:
     """The :class:`MotorFile` of a checked motor table (:func:`read_motor_table`): the motor built, its law applied."""
+    from ._motor_spec import check_estimate_lambda_m
+
     spec = table.spec
     motor = MotorParams(**table.values, delay=float(spec.delay_samples))
     if spec.hinkkanen is not None or spec.lelli is not None:
@@ -95,6 +105,8 @@ def motor_file_of(table: MotorTable, source: str) -> MotorFile:
 def _with_published_law(motor: MotorParams, law: HinkkanenSpec, data: dict, source: str) -> MotorParams:
     """``motor`` with a ``[hinkkanen]`` or ``[lelli]`` table's law (stated at the file's ``i_ref``); a key that would
     say it twice is refused."""
+    from ._motor_spec import LelliSpec
+
     lelli = isinstance(law, LelliSpec)
     table = "lelli" if lelli else "hinkkanen"
     own = ("Ld", "Lq") + MAGNETIC + EXPONENTS + ((("lambda_m",) + BRIDGE + BRIDGE_SHAPE) if lelli else ())

@@ -14,7 +14,7 @@ from pydantic import Field, ValidationError
 
 from ..errors import DrivecalError
 from .._parameters import BRIDGE, BRIDGE_SHAPE, DEFAULT_VALUES as _D, EXPONENTS, MAGNETIC
-from .._units import StrictModel, explain, quantity
+from .._schema import StrictModel, explain, quantity
 
 
 #: The keys of a motor file that describe the motor itself: a file that leaves one out gets the default

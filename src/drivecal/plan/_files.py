@@ -10,7 +10,6 @@ files") and exemplified in ``examples/``. Motor files are read in
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import tomllib
 from pathlib import Path
@@ -21,7 +20,8 @@ from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError,
 
 from . import _waveforms as waveforms
 from ..errors import DrivecalError
-from .._units import StrictModel, explain, quantity, read_toml
+from .._schema import StrictModel, explain, quantity
+from .._units import read_toml
 from ._plan import Inverter, Plan, Segment, inverter_setting_error
 
 Seconds, Hertz, Volts, Amperes = quantity("time"), quantity("frequency"), quantity("voltage"), quantity("current")
@@ -395,36 +395,3 @@ def write_plan(path: str | Path, plan: Plan, waveforms_spec: dict[tuple[str, str
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)
-
-
-def plan_to_dict(plan: Plan) -> dict[str, Any]:
-    """A plan as JSON: sample rate (Hz), V_dc (V), current limit (A), segments; the current noise it was designed
-    for (A) when recorded; the inverter when it is not the averaged, ideal one (dead time in s, device drop in V)."""
-    segments = []
-    for seg in plan.segments:
-        entry = {"name": seg.name, "duration": seg.duration, "locked": seg.locked}
-        if seg.temperature is not None:
-            entry["temperature"] = float(seg.temperature)
-        if seg.continues:
-            entry["continue"] = True
-        if seg.inverter != "on":
-            entry["inverter"] = seg.inverter
-        for axis in ("v_d", "v_q"):
-            value = getattr(seg, axis)
-            entry[axis] = float(value) if not hasattr(value, "__len__") else [float(v) for v in value]
-        segments.append(entry)
-    out = {
-        "sample_rate": plan.sample_rate,
-        "v_dc": plan.v_dc,
-        "current_limit": plan.current_limit,
-        "segments": segments,
-    }
-    if plan.max_speed is not None:
-        out["max_speed"] = float(plan.max_speed)
-    if plan.max_torque is not None:
-        out["max_torque"] = float(plan.max_torque)
-    if plan.current_noise is not None:
-        out["current_noise"] = float(plan.current_noise)
-    if not plan.inverter.is_default:
-        out["inverter"] = dataclasses.asdict(plan.inverter)
-    return out

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Sequence, Union
+from typing import Any, Sequence, Union
 
 import numpy as np
 
@@ -283,3 +283,36 @@ def locked_q_step_plan() -> Plan:
     invisible. Only R and Lq can be identified.
     """
     return Plan(segments=(Segment("locked q-step", 0.010, locked=True, v_d=0.0, v_q=8.0),))
+
+
+def plan_to_dict(plan: Plan) -> dict[str, Any]:
+    """A plan as JSON: sample rate (Hz), V_dc (V), current limit (A), segments; the current noise it was designed
+    for (A) when recorded; the inverter when it is not the averaged, ideal one (dead time in s, device drop in V)."""
+    segments = []
+    for seg in plan.segments:
+        entry = {"name": seg.name, "duration": seg.duration, "locked": seg.locked}
+        if seg.temperature is not None:
+            entry["temperature"] = float(seg.temperature)
+        if seg.continues:
+            entry["continue"] = True
+        if seg.inverter != "on":
+            entry["inverter"] = seg.inverter
+        for axis in ("v_d", "v_q"):
+            value = getattr(seg, axis)
+            entry[axis] = float(value) if not hasattr(value, "__len__") else [float(v) for v in value]
+        segments.append(entry)
+    out = {
+        "sample_rate": plan.sample_rate,
+        "v_dc": plan.v_dc,
+        "current_limit": plan.current_limit,
+        "segments": segments,
+    }
+    if plan.max_speed is not None:
+        out["max_speed"] = float(plan.max_speed)
+    if plan.max_torque is not None:
+        out["max_torque"] = float(plan.max_torque)
+    if plan.current_noise is not None:
+        out["current_noise"] = float(plan.current_noise)
+    if not plan.inverter.is_default:
+        out["inverter"] = dataclasses.asdict(plan.inverter)
+    return out
