@@ -80,9 +80,9 @@ BEFORE_WORK: dict[str, tuple[str, ...]] = {
 #: What the default imports baseline (76b0222) imported before the work besides: `demo` loaded the figure module
 #: (matplotlib) with or without --out. Another baseline (``--imports-baseline-commit``) imports the lists as they are.
 BASELINE_ONLY: dict[str, tuple[str, ...]] = {"demo": ("drivecal._figures",)}
-#: What this tree imports before the work besides (the baseline trees lack the module): `fleet-report --motor` reads
-#: the motor file's values and limits through ``data._nominal`` (stop 64); before, ``drivecal.data`` itself loaded
-#: the motor's loader, ``physics`` and JAX.
+#: What this tree imports before the work besides, and a baseline too where its tree has the module: `fleet-report
+#: --motor` reads the motor file's values and limits through ``data._nominal`` (stop 64); before, ``drivecal.data``
+#: itself loaded the motor's loader, ``physics`` and JAX.
 NOW_ONLY: dict[str, tuple[str, ...]] = {"fleet-report --motor": ("drivecal.data._nominal",)}
 #: Heavy libraries: which of them a command has loaded when its work starts (a column of the table).
 HEAVY = ("jax", "equinox", "optimistix", "pydantic", "pandas", "pyarrow", "scipy.special", "matplotlib", "jaxonomy")
@@ -161,8 +161,10 @@ def imports_before_work(trees: dict[str, Path], runs: int, status, baseline_only
     for command, modules in BEFORE_WORK.items():
         samples: dict[str, list[float]] = {name: [] for name in trees}
         loaded: dict[str, list[str]] = {}
-        lists = {"baseline": modules[:1] + baseline_only.get(command, ()) + modules[1:],
-                 "now": modules + NOW_ONLY.get(command, ())}
+        later = NOW_ONLY.get(command, ())
+        had = tuple(m for m in later if (trees["baseline"] / Path(*m.split("."))).with_suffix(".py").exists())
+        lists = {"baseline": modules[:1] + baseline_only.get(command, ()) + modules[1:] + had,
+                 "now": modules + later}
         for k in range(runs + 1):
             for name, src in trees.items():
                 status.update(f"imports before work: {command} ({name}, run {k + 1} of {runs + 1})")

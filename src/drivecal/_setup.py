@@ -49,7 +49,6 @@ if cache_enabled():
 os.environ["XLA_FLAGS"] = with_small_loops(os.environ.get("XLA_FLAGS", ""))
 
 
-
 def _jax_distributions(**kwargs: Any):
     """``importlib.metadata.distributions``, only the installed packages whose name starts with "jax".
 
