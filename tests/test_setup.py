@@ -97,3 +97,24 @@ def test_jax_sees_the_same_jax_packages_without_parsing_every_packages_metadata(
     assert expected and len(expected) < len(everything)  # jax, jaxlib, ... and other packages
     assert named(_setup._jax_distributions()) == expected
     assert importlib.metadata.distributions is _setup._all_distributions  # put back once JAX imported
+
+
+# A fresh interpreter: drivecal's set-up imports JAX without etils.epath, which stays importable afterwards.
+_WITHOUT_REMOTE_PATHS = """
+import sys
+import drivecal._setup
+from jax._src import path
+print(path.epath_installed, path.Path.__module__, "etils.epath" in sys.modules, "unittest.mock" in sys.modules)
+from etils import epath
+print(epath.__name__)
+"""
+
+
+def test_jax_imports_without_etils_epath_which_stays_importable():
+    """JAX keeps its local paths with pathlib, not etils.epath (whose import loads unittest.mock and asyncio)."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _WITHOUT_REMOTE_PATHS], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines() == ["False pathlib False False", "etils.epath"]

@@ -12,7 +12,6 @@ module (``drivecal inspect``) does not load them.
 from __future__ import annotations
 
 import math
-import sys
 import threading
 from typing import Any
 
@@ -29,10 +28,7 @@ def _special_functions() -> Any:
     ``import scipy.special`` runs the package's ``__init__``, which loads its array-API layer: that
     clones NumPy's namespace and so imports ``numpy.f2py`` (~0.13 s of the ~0.16 s it takes; the
     compiled functions themselves ~0.03 s, measured in a fresh process). drivecal needs the
-    functions only: their module is imported under a stand-in for its package (its spec, not run),
-    which is taken away at once, so a later ``import scipy.special`` runs the package as usual and
-    finds the module already loaded (the same functions). Where ``scipy.special`` is already imported,
-    or the stand-in fails (another SciPy layout), the package is imported as usual.
+    functions only: their module is imported without the package's ``__init__`` (``_apart``).
     """
     global _UFUNCS
     if _UFUNCS is None:  # every call after the first one takes no lock
@@ -43,23 +39,10 @@ def _special_functions() -> Any:
 
 
 def _load_special_functions() -> Any:
-    import importlib
-    import importlib.util
+    from ._apart import import_apart
 
-    if "scipy.special" not in sys.modules:
-        try:
-            stand_in = importlib.util.module_from_spec(importlib.util.find_spec("scipy.special"))
-            sys.modules["scipy.special"] = stand_in
-            try:
-                return importlib.import_module("scipy.special._ufuncs")
-            finally:
-                if sys.modules.get("scipy.special") is stand_in:
-                    del sys.modules["scipy.special"]
-        except Exception:  # noqa: BLE001 - whatever the layout does, the package's own import is the answer
-            pass
-    from scipy import special
-
-    return special
+    with import_apart("scipy.special", ("_ufuncs",)) as (ufuncs,):
+        return ufuncs
 
 
 def t_ppf(q: Any, df: Any) -> Any:

@@ -253,14 +253,15 @@ def _write(path: Path, data: bytes) -> None:
 def _initialize_lapack() -> None:
     """Load JAX's CPU LAPACK kernels, as lowering a linear-algebra op would.
 
-    A program lowered in another process calls them without any of their
-    lowering rules running here, and uninitialised kernels crash the process
-    (a null function pointer; jax-ml/jax#29610).
+    A program lowered in another process calls them with none of their lowering rules run here: uninitialised, they
+    crash it (jax-ml/jax#29610). From SciPy's BLAS and LAPACK, without ``scipy.linalg``'s ``__init__`` (``_apart``).
     """
     try:
         from jax._src.lib import lapack
 
-        lapack.prepare_lapack_call("getrf_ffi", np.dtype(np.float64))
+        from .._apart import import_apart
+        with import_apart("scipy.linalg", ("cython_blas", "cython_lapack")):
+            lapack.prepare_lapack_call("getrf_ffi", np.dtype(np.float64))
     except Exception:
         import jax.numpy as jnp
 
@@ -418,8 +419,7 @@ def _strongly_typed(leaf: Any) -> Any:
 
     ``jit`` compiles a program anew for each weak/strong pattern of its arguments, and a motor's fields are
     Python floats where a file or ``replace`` set them, float64 arrays where a fit did: without this, a model
-    selection compiled its sensitivity Jacobian (~9 s) twice for every candidate model. Same dtype, same
-    numbers.
+    selection compiled its sensitivity Jacobian (~9 s) twice for every candidate model. Same dtype, same numbers.
     """
     if isinstance(leaf, float):
         return np.float64(leaf)
