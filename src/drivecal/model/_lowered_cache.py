@@ -1,33 +1,25 @@
 """Traced computations kept on disk, so that a new process need not trace them again.
 
-JAX's persistent compilation cache (see ``drivecal/__init__.py``) keeps the
-compiled kernels, but its key is the lowered program: every new process still
-traces and lowers each jitted function before it can look the kernel up, and
-for the fit's solve that is seconds of Python. :func:`call` keeps the lowered
-program itself (``jax.export``: StableHLO and its signature) next to the
-kernels, keyed by everything the trace depends on: drivecal's source code, the
-versions of the libraries traced through, the structure, shapes and dtypes of
-the arguments, the static arguments and the JAX settings that change a trace.
-A later process loads it and runs it; its kernel is then an ordinary
-compilation-cache hit. Where this process compiled the kernel itself, the
-compiled executable is kept beside the program, and a later process runs it
-straight away: no lowering, no cache lookup (a warm ``drivecal fit`` spent
-about a sixth of its CPU time lowering the loaded programs). Where the
-compilation cache supplied the kernel (the same program traced by an earlier
-version of drivecal), the bytes the cache holds are kept: jaxlib 0.9
-serialises an executable loaded from the cache without its code, and it fails
-when run.
+JAX's persistent compilation cache (see ``drivecal/__init__.py``) keeps the compiled kernels, but its key is the
+lowered program: every new process still traces and lowers each jitted function before it can look the kernel up,
+and for the fit's solve that is seconds of Python. :func:`call` keeps the lowered program itself (``jax.export``:
+StableHLO and its signature) next to the kernels, keyed by everything the trace depends on: drivecal's source code,
+the versions of the libraries traced through, the structure, shapes and dtypes of the arguments, the static
+arguments and the JAX settings that change a trace. A later process loads it and runs it; its kernel is then an
+ordinary compilation-cache hit. Where this process compiled the kernel itself, the compiled executable is kept
+beside the program, and a later process runs it straight away: no lowering, no cache lookup (a warm ``drivecal fit``
+spent about a sixth of its CPU time lowering the loaded programs). Where the compilation cache supplied the kernel
+(the same program traced by an earlier version of drivecal), the bytes the cache holds are kept: jaxlib 0.9
+serialises an executable loaded from the cache without its code, and it fails when run.
 
-Other computed results that are pure functions of their inputs (the engine's
-benches) are kept in folders of their own beside the programs, under keys of the
-same kind (:func:`result_key`, :func:`keep_result`, :func:`kept_result`).
+Other computed results that are pure functions of their inputs (the engine's benches) are kept in folders of their
+own beside the programs, under keys of the same kind (:func:`result_key`, :func:`keep_result`, :func:`kept_result`).
 
-The same program runs whether it was just traced or loaded, so the numbers do
-not depend on the state of the cache (and they are those of the plain
-``jax.jit`` call). Off with ``DRIVECAL_JAX_CACHE=0`` (the plain call then
-runs); any failure to export, save or load falls back to the plain call.
-Calls with tracers (inside ``jit``, ``vmap`` or ``grad``) always take the plain
-call.
+The same program runs whether it was just traced or loaded, so the numbers do not depend on the state of the cache
+(and they are those of the plain ``jax.jit`` call). Off with ``DRIVECAL_JAX_CACHE=0`` (the plain call then runs);
+any failure to export, save or load falls back to the plain call. Calls with tracers (inside ``jit``, ``vmap`` or
+``grad``) always take the plain call. A command's programs are loaded ahead of need as the last process that
+started with the same program loaded them (``_preload``).
 """
 
 from __future__ import annotations
@@ -48,6 +40,7 @@ import jax
 import numpy as np
 
 from ._ahead import _OUTPUTS_UNUSED, _traced, _turn
+from ._preload import noted
 
 logger = logging.getLogger(__name__)
 
@@ -428,6 +421,18 @@ def _strongly_typed(leaf: Any) -> Any:
     return leaf
 
 
+def _load_kept(key: str, path: Path) -> threading.Lock:
+    """Put ``key``'s entry kept at ``path`` in ``_LOADED`` unless it is there (none kept: nothing); the key's lock."""
+    with _KEY_LOCKS_GUARD:
+        lock = _KEY_LOCKS.setdefault(key, threading.Lock())
+    with lock:
+        if key not in _LOADED:
+            entry = _load(path)
+            if entry is not False:
+                _LOADED[key] = entry
+    return lock
+
+
 def _load_or_export(key: str, path: Path, export: Callable[[Path], Any]) -> None:
     """Put ``key``'s entry in ``_LOADED``: kept at ``path``, else ``export(path)``, once across threads.
 
@@ -436,13 +441,7 @@ def _load_or_export(key: str, path: Path, export: Callable[[Path], Any]) -> None
     for it. Nor does it keep its turn while another thread exports the same program (a first fit's own
     sensitivity kernel, which its score tests use too): it waits for that program without it.
     """
-    with _KEY_LOCKS_GUARD:
-        lock = _KEY_LOCKS.setdefault(key, threading.Lock())
-    with lock:
-        if key not in _LOADED:
-            entry = _load(path)
-            if entry is not False:
-                _LOADED[key] = entry
+    lock = _load_kept(key, path)
     while key not in _LOADED:
         with _turn():
             if lock.acquire(blocking=False):
@@ -501,9 +500,10 @@ def call(fn: Callable, name: str, *args: Any, compiler_options: dict | None = No
     except Exception as exc:  # e.g. a leaf JAX cannot type: not a traced call at all
         logger.debug("drivecal: no cache key for %s (%s)", name, exc)
         return _plain(fn, compiler_options, static)(*args, **static)
+    path = folder / f"{name}-{key[:32]}.pkl"
+    noted(key, path, _load_kept)  # loaded ahead or not: the next process that starts as this one loads it ahead
     if key not in _LOADED:
-        _load_or_export(key, folder / f"{name}-{key[:32]}.pkl",
-                        lambda path: _export(fn, name, leaves, treedef, static, path, compiler_options))
+        _load_or_export(key, path, lambda path: _export(fn, name, leaves, treedef, static, path, compiler_options))
     entry = _LOADED[key]
     if entry is None:
         return _plain(fn, compiler_options, static)(*args, **static)

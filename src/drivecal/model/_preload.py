@@ -1,0 +1,115 @@
+"""The kept programs a command loaded last time, loaded ahead of need from its first one on.
+
+A warm command loads each kept program (``model._lowered_cache``) when it first calls it: XLA
+deserialises it, 0.1-0.4 s a program here. A command's programs come in steps (a fit's, then its
+score tests', then those of the effects the tests chose, and again), and each step waits for its
+loads while the other core idles: a warm ``drivecal fit examples/inverter_bench.csv`` loads 13
+programs in three such steps. A command of the same shape loads the same programs in the same order
+(a factory line fitting one plan, a user fitting a bench again). So the first program a process
+loads names, in a small record beside the programs (``next-KEY.json``), those loaded after it in
+the last process that started with it, and the next process that starts with it loads them in a
+thread from the start, in that order. A program loaded and not needed costs CPU on the other core,
+never a number: it is the same program whoever loads it. Only a top-level process does it (a
+batch's helpers load the batch's solve and little else).
+"""
+
+from __future__ import annotations
+
+import atexit
+import json
+import multiprocessing
+import threading
+from pathlib import Path
+from typing import Callable
+
+from .._io import write_bytes
+
+#: Records kept in the programs' folder; beyond this the least recently written go.
+MAX_RECORDS = 32
+
+_LOCK = threading.Lock()
+#: (key, file name) of each program this process asked for, in the order first asked.
+_SEQUENCE: list[tuple[str, str]] = []
+_ASKED: set[str] = set()
+#: The record of this process's first program: its path and what it said (None: no record read).
+_RECORD: dict[str, Path | list | None] = {"path": None, "said": None}
+#: Set at exit: the thread loading ahead stops after the program it is loading.
+_STOP = threading.Event()
+
+
+def record_path(first: str, folder: Path) -> Path:
+    """The record of the programs loaded after the program of key ``first`` (kept in ``folder``)."""
+    return folder / f"next-{first[:32]}.json"
+
+
+def noted(key: str, path: Path, load: Callable[[str, Path], object]) -> None:
+    """Note that the program of ``key`` (kept at ``path``) is asked for; on the process's first, start loading ahead.
+
+    ``load(key, path)`` loads a kept program where it is not loaded yet (absent: nothing).
+    """
+    if key in _ASKED:  # every call of a program comes here: asked before, nothing to do
+        return
+    with _LOCK:
+        if key in _ASKED:
+            return
+        _ASKED.add(key)
+        _SEQUENCE.append((key, path.name))
+        if len(_SEQUENCE) > 1 or multiprocessing.parent_process() is not None:
+            return
+        _RECORD["path"] = record_path(key, path.parent)
+    said = _read(_RECORD["path"])
+    _RECORD["said"] = said
+    atexit.register(_save)
+    if said:
+        thread = threading.Thread(target=_load_ahead, args=(said, path.parent, load), name="drivecal-preload",
+                                  daemon=True)
+        atexit.register(_stop, thread)  # runs before _save (last registered, first run)
+        thread.start()
+
+
+def _read(path: Path) -> list[tuple[str, str]] | None:
+    """The (key, file name) pairs a record lists; None where there is none or it cannot be read."""
+    try:
+        said = json.loads(path.read_text())
+        return [(str(k), str(n)) for k, n in said if "/" not in str(n)]
+    except (OSError, ValueError, TypeError):
+        return None
+
+
+def _load_ahead(said: list[tuple[str, str]], folder: Path, load: Callable[[str, Path], object]) -> None:
+    for key, name in said:
+        if _STOP.is_set():
+            return
+        try:
+            load(key, folder / name)
+        except Exception:  # noqa: BLE001 - loading ahead is a guess: the program's own call loads it, or says why
+            return
+
+
+def _stop(thread: threading.Thread) -> None:
+    """Stop loading ahead and wait for the program being loaded (the interpreter's exit must not overtake it)."""
+    _STOP.set()
+    thread.join()
+
+
+def _save() -> None:
+    """Write the record of this process's first program: the programs asked for after it, where they changed."""
+    path = _RECORD["path"]
+    with _LOCK:
+        after = _SEQUENCE[1:]
+    if path is None or after == _RECORD["said"] or (not after and _RECORD["said"] is None):
+        return
+    try:
+        write_bytes(path, json.dumps(after).encode())
+        records = sorted(path.parent.glob("next-*.json"), key=_age)
+        for old in records[:-MAX_RECORDS]:  # the least recently written go
+            old.unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
+def _age(path: Path) -> float:
+    try:
+        return path.stat().st_mtime
+    except OSError:
+        return 0.0
