@@ -46,3 +46,24 @@ def test_a_package_the_stand_in_cannot_take_is_imported_as_usual():
         with import_apart("colorsys", ("nothing",)):
             pass
     assert "colorsys" in sys.modules
+
+
+# A fresh interpreter: a thread that imports the package while the block runs waits for it, then imports it whole.
+_ANOTHER_THREAD = """
+import importlib, threading
+from drivecal._apart import import_apart
+got = []
+with import_apart("scipy.linalg", ("cython_blas",)) as (blas,):
+    thread = threading.Thread(target=lambda: got.append(importlib.import_module("scipy.linalg")))
+    thread.start()
+    thread.join(0.5)
+    print("waits" if thread.is_alive() else "did not wait")
+thread.join()
+print(got[0].det([[2.0, 0.0], [0.0, 3.0]]), got[0].cython_blas is blas)
+"""
+
+
+def test_a_thread_importing_the_package_meanwhile_waits_and_gets_it_whole():
+    proc = subprocess.run([sys.executable, "-c", _ANOTHER_THREAD], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines() == ["waits", "6.0 True"]
