@@ -321,9 +321,8 @@ def _serialize(compiled: Any, hit: tuple | None) -> tuple[bytes, Any, Any]:
 
 
 def _executable(kept: tuple, lapack: bool = True) -> Callable:
-    """A kept executable, loaded: called with the leaves of the arguments it was compiled for.
-
-    ``lapack``: whether it may call LAPACK (:func:`_initialize_lapack` first)."""
+    """A kept executable, loaded: called with the leaves of the arguments it was compiled for (``lapack``: it may
+    call LAPACK, :func:`_initialize_lapack` first)."""
     from jax.experimental import serialize_executable
 
     if lapack:
@@ -382,6 +381,7 @@ def _export(fn: Callable, name: str, leaves: list, treedef: Any, static: dict[st
         return out_leaves
 
     try:
+        _initialize_lapack()  # here, without scipy.linalg's __init__, not by a linear-algebra op's lowering rule
         exported = export.export(jax.jit(flat))(*leaves)
         _traced()
         # The VJP hook is a closure (not needed: these calls are never differentiated).
