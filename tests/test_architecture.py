@@ -20,7 +20,7 @@ TESTS = Path(__file__).resolve().parent
 #: The layers, lowest first: a module may import its own layer and those below it.
 LAYERS: tuple[frozenset[str], ...] = tuple(frozenset(x) for x in (
     {"errors", "_version", "_setup", "_stats", "_io", "_units", "_status", "_figure_kinds", "_figures", "_page",
-     "_parameters", "_lazy", "_pytree", "_schema", "_apart"},
+     "_parameters", "_lazy", "_pytree", "_schema", "_apart", "_exit"},
     {"physics"},
     {"plan"},
     {"model"},

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import click
 
+from .. import _exit
 from .._io import check_output_path
 from .._version import __version__
 from .._status import Status
@@ -264,6 +265,7 @@ def main(argv: list[str] | None = None) -> int:
         if not any(os.environ.get(name) for name in BLAS_THREAD_VARIABLES) and "numpy" not in sys.modules:
             os.environ[BLAS_THREAD_VARIABLES[0]] = "1"  # read by OpenBLAS as NumPy loads it (and by helpers)
         atexit.register(_end_without_teardown)  # before any other: the last to run
+        _exit.WITHOUT_TEARDOWN = True
         gc.set_threshold(YOUNG_GENERATION, *gc.get_threshold()[1:])
     _WARNINGS = []
     refused = False

@@ -8,7 +8,10 @@ programs in three such steps. A command of the same shape loads the same program
 (a factory line fitting one plan, a user fitting a bench again). So the first program a process
 loads names, in a small record beside the programs (``next-KEY.json``), those loaded after it in
 the last process that started with it, and the next process that starts with it loads them in a
-thread from the start, in that order. A program loaded and not needed costs CPU on the other core,
+thread from the start, in that order. Programs listed before and not asked for this time stay listed
+after them: two commands that start alike and then differ (``fit examples/bench.csv``, whose data need
+no bench effect, and ``fit examples/inverter_bench.csv``, which then loads the effects' programs), run
+in turns, each find theirs. A program loaded and not needed costs CPU on the other core,
 never a number: it is the same program whoever loads it. Only a top-level process does it (a
 batch's helpers load the batch's solve and little else).
 """
@@ -22,10 +25,13 @@ import threading
 from pathlib import Path
 from typing import Callable
 
+from .. import _exit
 from .._io import write_bytes
 
 #: Records kept in the programs' folder; beyond this the least recently written go.
 MAX_RECORDS = 32
+#: Programs a record lists at most.
+MAX_LISTED = 32
 
 _LOCK = threading.Lock()
 #: (key, file name) of each program this process asked for, in the order first asked.
@@ -87,17 +93,21 @@ def _load_ahead(said: list[tuple[str, str]], folder: Path, load: Callable[[str, 
 
 
 def _stop(thread: threading.Thread) -> None:
-    """Stop loading ahead and wait for the program being loaded (the interpreter's exit must not overtake it)."""
+    """Stop loading ahead; wait for the program being loaded where the interpreter's teardown follows (``_exit``)."""
     _STOP.set()
-    thread.join()
+    if not _exit.WITHOUT_TEARDOWN:
+        thread.join()
 
 
 def _save() -> None:
-    """Write the record of this process's first program: the programs asked for after it, where they changed."""
+    """Write the record of this process's first program, where it changed: the programs asked for after it, then
+    those the record listed that this process did not ask for (at most :data:`MAX_LISTED`)."""
     path = _RECORD["path"]
     with _LOCK:
         after = _SEQUENCE[1:]
-    if path is None or after == _RECORD["said"] or (not after and _RECORD["said"] is None):
+    said = _RECORD["said"] or []
+    after = (after + [entry for entry in said if entry[0] not in _ASKED])[:MAX_LISTED]
+    if path is None or after == said:
         return
     try:
         write_bytes(path, json.dumps(after).encode())
