@@ -106,3 +106,46 @@ def test_a_second_process_loads_ahead_what_the_first_one_loaded_after_its_first_
         done = subprocess.run([sys.executable, "-c", _TWO_PROCESSES, step], env=env, capture_output=True, text=True,
                               timeout=300)
         assert done.returncode == 0 and said in done.stdout, done.stdout + done.stderr
+
+
+def test_programs_listed_and_not_asked_for_stay_listed_after_those_asked_for(tmp_path, fresh, monkeypatch):
+    """Two commands that start alike and then differ, run in turns: the record keeps both's programs, this one's first."""
+    record = _preload.record_path("a" * 40, tmp_path)
+    record.write_text(json.dumps([["b" * 40, "b.pkl"], ["c" * 40, "c.pkl"]]))
+    loaded = []
+    _preload.noted("a" * 40, tmp_path / "a.pkl", lambda k, p: loaded.append(p.name))
+    _preload.noted("d" * 40, tmp_path / "d.pkl", lambda k, p: loaded.append(p.name))
+    _preload.noted("c" * 40, tmp_path / "c.pkl", lambda k, p: loaded.append(p.name))
+    _exit(fresh)
+    assert loaded == ["b.pkl", "c.pkl"]
+    assert json.loads(record.read_text()) == [["d" * 40, "d.pkl"], ["c" * 40, "c.pkl"], ["b" * 40, "b.pkl"]]
+    monkeypatch.setattr(_preload, "MAX_LISTED", 2)
+    for name, value in (("_SEQUENCE", []), ("_ASKED", set()), ("_RECORD", {"path": None, "said": None})):
+        monkeypatch.setattr(_preload, name, value)
+    fresh.clear()
+    _preload.noted("a" * 40, tmp_path / "a.pkl", lambda k, p: None)
+    _preload.noted("e" * 40, tmp_path / "e.pkl", lambda k, p: None)
+    _exit(fresh)
+    assert json.loads(record.read_text()) == [["e" * 40, "e.pkl"], ["d" * 40, "d.pkl"]]
+
+
+def test_the_drivecal_program_does_not_wait_at_exit_for_a_program_being_loaded(tmp_path, fresh, monkeypatch):
+    """It ends without the interpreter's teardown (``_exit``): the thread is told to stop, not waited for."""
+    from drivecal import _exit as process_exit
+
+    _preload.record_path("a" * 40, tmp_path).write_text(json.dumps([["b" * 40, "b.pkl"], ["c" * 40, "c.pkl"]]))
+    loading, release, loaded = threading.Event(), threading.Event(), []
+
+    def slow(key, path):
+        loading.set()
+        release.wait(10)
+        loaded.append(path.name)
+
+    _preload.noted("a" * 40, tmp_path / "a.pkl", slow)
+    assert loading.wait(10)
+    monkeypatch.setattr(process_exit, "WITHOUT_TEARDOWN", True)
+    _exit(fresh)  # returns while "b" is being loaded
+    assert loaded == []
+    release.set()
+    next(t for t in threading.enumerate() if t.name == "drivecal-preload").join(10)
+    assert loaded == ["b.pkl"]  # stopped after the program it was loading
