@@ -149,3 +149,26 @@ def test_the_drivecal_program_does_not_wait_at_exit_for_a_program_being_loaded(t
     release.set()
     next(t for t in threading.enumerate() if t.name == "drivecal-preload").join(10)
     assert loaded == ["b.pkl"]  # stopped after the program it was loading
+
+
+@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")  # JAX's warning: the child runs no JAX
+def test_a_fork_waits_for_the_program_being_loaded_ahead(tmp_path, fresh):
+    """A child process never starts with its parent's thread inside XLA's loader (its locks held for ever there)."""
+    _preload.record_path("a" * 40, tmp_path).write_text(json.dumps([["b" * 40, "b.pkl"]]))
+    loading, release, order = threading.Event(), threading.Event(), []
+
+    def slow(key, path):
+        loading.set()
+        release.wait(10)
+        order.append("loaded")
+
+    _preload.noted("a" * 40, tmp_path / "a.pkl", slow)
+    assert loading.wait(10)
+    threading.Timer(0.3, lambda: (order.append("released"), release.set())).start()
+    pid = os.fork()
+    if pid == 0:
+        os._exit(0)
+    os.waitpid(pid, 0)
+    order.append("forked")
+    assert order == ["released", "loaded", "forked"]
+    _exit(fresh)

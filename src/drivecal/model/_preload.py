@@ -21,6 +21,7 @@ from __future__ import annotations
 import atexit
 import json
 import multiprocessing
+import os
 import threading
 from pathlib import Path
 from typing import Callable
@@ -84,12 +85,20 @@ def _read(path: Path) -> list[tuple[str, str]] | None:
 
 def _load_ahead(said: list[tuple[str, str]], folder: Path, load: Callable[[str, Path], object]) -> None:
     for key, name in said:
-        if _STOP.is_set():
-            return
-        try:
-            load(key, folder / name)
-        except Exception:  # noqa: BLE001 - loading ahead is a guess: the program's own call loads it, or says why
-            return
+        with _LOADING:
+            if _STOP.is_set():
+                return
+            try:
+                load(key, folder / name)
+            except Exception:  # noqa: BLE001 - loading ahead is a guess: the program's own call loads it, or says why
+                return
+
+
+#: Held while a program is loaded ahead, and by a fork (a batch's helpers): no child starts with a thread of its
+#: parent inside XLA's loader, whose locks it would hold in the child for ever.
+_LOADING = threading.Lock()
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(before=_LOADING.acquire, after_in_parent=_LOADING.release, after_in_child=_LOADING.release)
 
 
 def _stop(thread: threading.Thread) -> None:
