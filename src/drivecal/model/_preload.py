@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import atexit
 import json
-import multiprocessing
 import os
+import sys
 import threading
 from pathlib import Path
 from typing import Callable
@@ -61,7 +61,7 @@ def noted(key: str, path: Path, load: Callable[[str, Path], object]) -> None:
             return
         _ASKED.add(key)
         _SEQUENCE.append((key, path.name))
-        if len(_SEQUENCE) > 1 or multiprocessing.parent_process() is not None:
+        if len(_SEQUENCE) > 1 or _a_helper():
             return
         _RECORD["path"] = record_path(key, path.parent)
     said = _read(_RECORD["path"])
@@ -72,6 +72,12 @@ def noted(key: str, path: Path, load: Callable[[str, Path], object]) -> None:
                                   daemon=True)
         atexit.register(_stop, thread)  # runs before _save (last registered, first run)
         thread.start()
+
+
+def _a_helper() -> bool:
+    """Whether this process was started by ``multiprocessing`` (which it then has imported: not importing it here)."""
+    started = sys.modules.get("multiprocessing")
+    return started is not None and started.parent_process() is not None
 
 
 def _read(path: Path) -> list[tuple[str, str]] | None:
