@@ -131,8 +131,6 @@ def test_programs_listed_and_not_asked_for_stay_listed_after_those_asked_for(tmp
 
 def test_the_drivecal_program_does_not_wait_at_exit_for_a_program_being_loaded(tmp_path, fresh, monkeypatch):
     """It ends without the interpreter's teardown (``_exit``): the thread is told to stop, not waited for."""
-    from drivecal import _exit as process_exit
-
     _preload.record_path("a" * 40, tmp_path).write_text(json.dumps([["b" * 40, "b.pkl"], ["c" * 40, "c.pkl"]]))
     loading, release, loaded = threading.Event(), threading.Event(), []
 
@@ -143,7 +141,7 @@ def test_the_drivecal_program_does_not_wait_at_exit_for_a_program_being_loaded(t
 
     _preload.noted("a" * 40, tmp_path / "a.pkl", slow)
     assert loading.wait(10)
-    monkeypatch.setattr(process_exit, "WITHOUT_TEARDOWN", True)
+    monkeypatch.setattr(_preload._exit, "WITHOUT_TEARDOWN", True)
     _exit(fresh)  # returns while "b" is being loaded
     assert loaded == []
     release.set()
