@@ -13,13 +13,18 @@ import pytest
 from drivecal.model import _preload
 
 
-@pytest.fixture()
-def fresh(monkeypatch):
-    """The module's state as in a new process; its exit callbacks collected, not registered."""
+def _new_process(monkeypatch):
+    """The module's state as in a new process."""
     monkeypatch.setattr(_preload, "_SEQUENCE", [])
     monkeypatch.setattr(_preload, "_ASKED", set())
     monkeypatch.setattr(_preload, "_RECORD", {"path": None, "said": None})
     monkeypatch.setattr(_preload, "_STOP", threading.Event())
+
+
+@pytest.fixture()
+def fresh(monkeypatch):
+    """The module's state as in a new process; its exit callbacks collected, not registered."""
+    _new_process(monkeypatch)
     at_exit = []
     monkeypatch.setattr(_preload.atexit, "register", lambda fn, *args: at_exit.append((fn, args)))
     return at_exit
@@ -39,8 +44,7 @@ def test_the_programs_asked_after_the_first_are_recorded_and_loaded_ahead_next_t
     assert json.loads(record.read_text()) == [["b" * 40, f"p-{'b' * 32}.pkl"], ["c" * 40, f"p-{'c' * 32}.pkl"]]
     assert loaded == []  # no record the first time: nothing loaded ahead
 
-    for name, value in (("_SEQUENCE", []), ("_ASKED", set()), ("_RECORD", {"path": None, "said": None})):
-        monkeypatch.setattr(_preload, name, value)  # a new process
+    _new_process(monkeypatch)
     fresh.clear()
     _preload.noted("a" * 40, tmp_path / f"p-{'a' * 32}.pkl", lambda k, p: loaded.append((k, p.name)))
     _exit(fresh)  # stops the thread after its loads and joins it; the record said the same: not written again
@@ -120,8 +124,7 @@ def test_programs_listed_and_not_asked_for_stay_listed_after_those_asked_for(tmp
     assert loaded == ["b.pkl", "c.pkl"]
     assert json.loads(record.read_text()) == [["d" * 40, "d.pkl"], ["c" * 40, "c.pkl"], ["b" * 40, "b.pkl"]]
     monkeypatch.setattr(_preload, "MAX_LISTED", 2)
-    for name, value in (("_SEQUENCE", []), ("_ASKED", set()), ("_RECORD", {"path": None, "said": None})):
-        monkeypatch.setattr(_preload, name, value)
+    _new_process(monkeypatch)
     fresh.clear()
     _preload.noted("a" * 40, tmp_path / "a.pkl", lambda k, p: None)
     _preload.noted("e" * 40, tmp_path / "e.pkl", lambda k, p: None)
